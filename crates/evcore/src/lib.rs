@@ -1,0 +1,20 @@
+//! evcore: the pure-Rust core of evservo (no Python here).
+//!
+//! Data walks one way: raw events ([`event`]) are rectified through [`camera::UndistortLut`] into a
+//! front-end ([`surface`]: SCARF, fixed-count, EROS); its active set becomes a truncated event
+//! distance field ([`field`]); a model point set rendered once ([`render`], [`pointset`]) is
+//! registered to the field by the solvers ([`solve`]); [`tracker`] runs that loop in its own thread.
+//! [`sim`] is the event-camera simulator and [`io`] decodes recorded event streams.
+
+pub mod camera;
+pub mod error;
+pub mod event;
+pub mod image;
+pub mod rng;
+pub mod se3;
+
+pub use camera::{Camera, UndistortLut};
+pub use error::{Error, Result};
+pub use event::EventBatch;
+pub use image::Roi;
+pub use se3::Pose;
