@@ -23,16 +23,38 @@ pub struct Camera {
 }
 
 impl Camera {
-    pub fn new(width: u32, height: u32, fx: f64, fy: f64, cx: f64, cy: f64, dist: [f64; 5]) -> Result<Self> {
-        ensure((1..=16384).contains(&width) && (1..=16384).contains(&height), || {
-            format!("sensor size {width}x{height} must be within 1..=16384 pixels")
+    pub fn new(
+        width: u32,
+        height: u32,
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+        dist: [f64; 5],
+    ) -> Result<Self> {
+        ensure(
+            (1..=16384).contains(&width) && (1..=16384).contains(&height),
+            || format!("sensor size {width}x{height} must be within 1..=16384 pixels"),
+        )?;
+        ensure(
+            fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0,
+            || format!("focal lengths must be finite and positive, got fx={fx}, fy={fy}"),
+        )?;
+        ensure(cx.is_finite() && cy.is_finite(), || {
+            format!("principal point ({cx}, {cy}) must be finite")
         })?;
-        ensure(fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0, || {
-            format!("focal lengths must be finite and positive, got fx={fx}, fy={fy}")
+        ensure(dist.iter().all(|d| d.is_finite()), || {
+            format!("distortion {dist:?} must be finite")
         })?;
-        ensure(cx.is_finite() && cy.is_finite(), || format!("principal point ({cx}, {cy}) must be finite"))?;
-        ensure(dist.iter().all(|d| d.is_finite()), || format!("distortion {dist:?} must be finite"))?;
-        Ok(Self { width, height, fx, fy, cx, cy, dist })
+        Ok(Self {
+            width,
+            height,
+            fx,
+            fy,
+            cx,
+            cy,
+            dist,
+        })
     }
 
     /// The Prophesee IMX636 (EVK4) of the paper: 1280×720, calibrated intrinsics, k1 only.
@@ -50,7 +72,10 @@ impl Camera {
 
     /// The same camera without distortion (the rectified grid).
     pub fn rectified(&self) -> Self {
-        Self { dist: [0.0; 5], ..*self }
+        Self {
+            dist: [0.0; 5],
+            ..*self
+        }
     }
 
     pub fn n_pixels(&self) -> usize {
@@ -138,7 +163,12 @@ impl Camera {
 
     /// Project to the rectified grid (pinhole only).
     pub fn project_pinhole(&self, p_c: &Vector3<f64>) -> Option<(f64, f64)> {
-        (p_c.z > 0.0).then(|| (self.fx * p_c.x / p_c.z + self.cx, self.fy * p_c.y / p_c.z + self.cy))
+        (p_c.z > 0.0).then(|| {
+            (
+                self.fx * p_c.x / p_c.z + self.cx,
+                self.fy * p_c.y / p_c.z + self.cy,
+            )
+        })
     }
 
     /// Raw pixel (u, v) to its rectified position; `None` where the inversion fails.
@@ -190,7 +220,11 @@ impl UndistortLut {
                 }
             })
             .collect();
-        Self { width: w, height: h, index }
+        Self {
+            width: w,
+            height: h,
+            index,
+        }
     }
 
     /// Rectified pixel index of raw pixel (x, y), or `OUTSIDE`. The caller has validated bounds.
@@ -213,11 +247,17 @@ mod tests {
 
     #[test]
     fn rectify_inverts_distort_across_the_sensor() {
-        let cam = Camera { dist: [-0.2819, 0.05, 0.001, -0.002, 0.01], ..Camera::imx636() };
+        let cam = Camera {
+            dist: [-0.2819, 0.05, 0.001, -0.002, 0.01],
+            ..Camera::imx636()
+        };
         for &(u, v) in &[(0.0, 0.0), (1279.0, 719.0), (640.0, 360.0), (100.0, 650.0)] {
             let (ur, vr) = cam.rectify_pixel(u, v).expect("inside the valid range");
             let (ud, vd) = cam.distort_pixel(ur, vr);
-            assert!((ud - u).abs() < 1e-6 && (vd - v).abs() < 1e-6, "({u},{v}) -> ({ud},{vd})");
+            assert!(
+                (ud - u).abs() < 1e-6 && (vd - v).abs() < 1e-6,
+                "({u},{v}) -> ({ud},{vd})"
+            );
         }
     }
 

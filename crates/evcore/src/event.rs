@@ -108,7 +108,9 @@ mod tests {
 
     #[test]
     fn accepts_monotonic_in_range() {
-        assert!(batch(&[0, 9, 5], &[1, 1, 2]).validate(10, 10, Some(1)).is_ok());
+        assert!(batch(&[0, 9, 5], &[1, 1, 2])
+            .validate(10, 10, Some(1))
+            .is_ok());
     }
 
     #[test]

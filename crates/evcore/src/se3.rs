@@ -3,7 +3,9 @@
 //! Increments compose on the left, in the camera frame: T ← exp(ξ)·T.
 
 use crate::error::{Error, Result};
-use nalgebra::{Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6,
+};
 
 pub type Pose = Isometry3<f64>;
 
@@ -19,7 +21,9 @@ fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
         return Matrix3::identity() + 0.5 * k;
     }
     let t2 = theta * theta;
-    Matrix3::identity() + (1.0 - theta.cos()) / t2 * k + (theta - theta.sin()) / (t2 * theta) * k * k
+    Matrix3::identity()
+        + (1.0 - theta.cos()) / t2 * k
+        + (theta - theta.sin()) / (t2 * theta) * k * k
 }
 
 /// Exponential map of a twist.
@@ -33,7 +37,10 @@ pub fn exp(xi: &Vector6<f64>) -> Pose {
 /// Logarithm: the twist whose exponential is `pose`.
 pub fn log(pose: &Pose) -> Vector6<f64> {
     let w = pose.rotation.scaled_axis();
-    let v = left_jacobian(&w).try_inverse().unwrap_or_else(Matrix3::identity) * pose.translation.vector;
+    let v = left_jacobian(&w)
+        .try_inverse()
+        .unwrap_or_else(Matrix3::identity)
+        * pose.translation.vector;
     Vector6::new(v.x, v.y, v.z, w.x, w.y, w.z)
 }
 
@@ -49,11 +56,19 @@ pub fn unit_twist(k: usize) -> Vector6<f64> {
 /// (the block is then re-orthonormalised so round-off never accumulates).
 pub fn pose_from_matrix(m: &[[f64; 4]; 4]) -> Result<Pose> {
     if m.iter().flatten().any(|v| !v.is_finite()) {
-        return Err(Error::InvalidArgument("pose contains NaN or infinite entries".into()));
+        return Err(Error::InvalidArgument(
+            "pose contains NaN or infinite entries".into(),
+        ));
     }
     let bottom = m[3];
-    if bottom[0].abs() > 1e-9 || bottom[1].abs() > 1e-9 || bottom[2].abs() > 1e-9 || (bottom[3] - 1.0).abs() > 1e-9 {
-        return Err(Error::InvalidArgument(format!("pose bottom row must be (0, 0, 0, 1), got {bottom:?}")));
+    if bottom[0].abs() > 1e-9
+        || bottom[1].abs() > 1e-9
+        || bottom[2].abs() > 1e-9
+        || (bottom[3] - 1.0).abs() > 1e-9
+    {
+        return Err(Error::InvalidArgument(format!(
+            "pose bottom row must be (0, 0, 0, 1), got {bottom:?}"
+        )));
     }
     let r = Matrix3::from_fn(|i, j| m[i][j]);
     let err = (r.transpose() * r - Matrix3::identity()).abs().max();
@@ -64,7 +79,10 @@ pub fn pose_from_matrix(m: &[[f64; 4]; 4]) -> Result<Pose> {
         )));
     }
     let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
-    Ok(Isometry3::from_parts(Translation3::new(m[0][3], m[1][3], m[2][3]), rot))
+    Ok(Isometry3::from_parts(
+        Translation3::new(m[0][3], m[1][3], m[2][3]),
+        rot,
+    ))
 }
 
 pub fn pose_to_matrix(pose: &Pose) -> [[f64; 4]; 4] {

@@ -16,15 +16,27 @@ impl PyCamera {
     /// Camera(width, height, fx, fy, cx, cy, dist=(k1, k2, p1, p2, k3)); pixels, OpenCV convention.
     #[new]
     #[pyo3(signature = (width, height, fx, fy, cx, cy, dist=(0.0, 0.0, 0.0, 0.0, 0.0)))]
-    fn new(width: u32, height: u32, fx: f64, fy: f64, cx: f64, cy: f64, dist: (f64, f64, f64, f64, f64)) -> PyResult<Self> {
+    fn new(
+        width: u32,
+        height: u32,
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+        dist: (f64, f64, f64, f64, f64),
+    ) -> PyResult<Self> {
         let d = [dist.0, dist.1, dist.2, dist.3, dist.4];
-        Ok(Self { inner: Camera::new(width, height, fx, fy, cx, cy, d).map_err(to_py)? })
+        Ok(Self {
+            inner: Camera::new(width, height, fx, fy, cx, cy, d).map_err(to_py)?,
+        })
     }
 
     /// The Prophesee IMX636 of the paper: 1280×720, fx 1163.59, fy 1173.48, cx 658.823, cy 339.619, k1 −0.2819.
     #[staticmethod]
     fn imx636() -> Self {
-        Self { inner: Camera::imx636() }
+        Self {
+            inner: Camera::imx636(),
+        }
     }
 
     #[getter]
@@ -62,26 +74,41 @@ impl PyCamera {
     #[getter]
     fn k<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
         let c = &self.inner;
-        numpy::ndarray::arr2(&[[c.fx, 0.0, c.cx], [0.0, c.fy, c.cy], [0.0, 0.0, 1.0]]).into_pyarray(py)
+        numpy::ndarray::arr2(&[[c.fx, 0.0, c.cx], [0.0, c.fy, c.cy], [0.0, 0.0, 1.0]])
+            .into_pyarray(py)
     }
 
     /// The same camera without distortion (the rectified grid the tracker works in).
     fn rectified(&self) -> Self {
-        Self { inner: self.inner.rectified() }
+        Self {
+            inner: self.inner.rectified(),
+        }
     }
 
     /// Project (N, 3) points in the camera frame (metres) to (N, 2) raw pixels with distortion.
     /// Points at or behind the camera plane give NaN.
     #[pyo3(signature = (points_c, distort=true))]
-    fn project<'py>(&self, py: Python<'py>, points_c: PyReadonlyArray2<'py, f64>, distort: bool) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    fn project<'py>(
+        &self,
+        py: Python<'py>,
+        points_c: PyReadonlyArray2<'py, f64>,
+        distort: bool,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let p = points_c.as_array();
         if p.ncols() != 3 {
-            return Err(pyo3::exceptions::PyValueError::new_err(format!("points must have shape (N, 3), got {:?}", p.shape())));
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "points must have shape (N, 3), got {:?}",
+                p.shape()
+            )));
         }
         let mut out = numpy::ndarray::Array2::<f64>::from_elem((p.nrows(), 2), f64::NAN);
         for (i, row) in p.rows().into_iter().enumerate() {
             let v = nalgebra::Vector3::new(row[0], row[1], row[2]);
-            let uv = if distort { self.inner.project(&v) } else { self.inner.project_pinhole(&v) };
+            let uv = if distort {
+                self.inner.project(&v)
+            } else {
+                self.inner.project_pinhole(&v)
+            };
             if let Some((u, w)) = uv {
                 out[(i, 0)] = u;
                 out[(i, 1)] = w;
@@ -91,10 +118,17 @@ impl PyCamera {
     }
 
     /// Raw pixels (N, 2) to rectified pixels (N, 2); NaN where the distortion cannot be inverted.
-    fn rectify_pixels<'py>(&self, py: Python<'py>, pixels: PyReadonlyArray2<'py, f64>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    fn rectify_pixels<'py>(
+        &self,
+        py: Python<'py>,
+        pixels: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let p = pixels.as_array();
         if p.ncols() != 2 {
-            return Err(pyo3::exceptions::PyValueError::new_err(format!("pixels must have shape (N, 2), got {:?}", p.shape())));
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "pixels must have shape (N, 2), got {:?}",
+                p.shape()
+            )));
         }
         let mut out = numpy::ndarray::Array2::<f64>::from_elem((p.nrows(), 2), f64::NAN);
         for (i, row) in p.rows().into_iter().enumerate() {

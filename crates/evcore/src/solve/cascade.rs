@@ -1,0 +1,110 @@
+//! Which solver runs at each update: EDFT⁺ interleaves one LM step with N search steps (Section
+//! III-B-c); EDOPTS searches only; EDFT registers only.
+
+use crate::error::{Error, Result};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SolverMode {
+    /// The cascade: 1 pyramidal LM step, then `n_search` hypothesis-search steps.
+    EdftPlus,
+    /// Hypothesis search only (EDOPT's paradigm on the SCARF front-end).
+    Edopts,
+    /// Pyramidal LM only (EDFT's paradigm).
+    Edft,
+}
+
+impl SolverMode {
+    pub fn parse(name: &str) -> Result<Self> {
+        match name.to_ascii_lowercase().as_str() {
+            "edft+" | "edftplus" | "edft-plus" => Ok(Self::EdftPlus),
+            "edopts" | "edopt" => Ok(Self::Edopts),
+            "edft" => Ok(Self::Edft),
+            other => Err(Error::InvalidArgument(format!(
+                "unknown solver {other:?}; choose edft+, edopts or edft"
+            ))),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::EdftPlus => "edft+",
+            Self::Edopts => "edopts",
+            Self::Edft => "edft",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StepKind {
+    Lm,
+    Search,
+}
+
+/// The fixed-ratio schedule; one cycle is N + 1 steps in every mode.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Schedule {
+    pub mode: SolverMode,
+    pub n_search: usize,
+    position: usize,
+}
+
+impl Schedule {
+    pub fn new(mode: SolverMode, n_search: usize) -> Result<Self> {
+        if n_search == 0 && mode == SolverMode::EdftPlus {
+            return Err(Error::InvalidArgument(
+                "edft+ needs at least one search step per LM step".into(),
+            ));
+        }
+        if n_search > 1000 {
+            return Err(Error::InvalidArgument(format!(
+                "n_search {n_search} is unreasonably large (max 1000)"
+            )));
+        }
+        Ok(Self {
+            mode,
+            n_search,
+            position: 0,
+        })
+    }
+
+    pub fn cycle_len(&self) -> usize {
+        self.n_search + 1
+    }
+
+    /// The kind of the next step; advances the schedule.
+    pub fn next_step(&mut self) -> StepKind {
+        let kind = match self.mode {
+            SolverMode::Edft => StepKind::Lm,
+            SolverMode::Edopts => StepKind::Search,
+            SolverMode::EdftPlus if self.position == 0 => StepKind::Lm,
+            SolverMode::EdftPlus => StepKind::Search,
+        };
+        self.position = (self.position + 1) % self.cycle_len();
+        kind
+    }
+
+    /// Restart at the beginning of a cycle (after a reset of the pose).
+    pub fn restart(&mut self) {
+        self.position = 0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn edft_plus_runs_one_lm_then_n_searches() {
+        let mut s = Schedule::new(SolverMode::EdftPlus, 4).unwrap();
+        let kinds: Vec<_> = (0..10).map(|_| s.next_step()).collect();
+        use StepKind::*;
+        assert_eq!(
+            kinds,
+            [Lm, Search, Search, Search, Search, Lm, Search, Search, Search, Search]
+        );
+        let mut e = Schedule::new(SolverMode::Edopts, 4).unwrap();
+        assert!((0..5).all(|_| e.next_step() == Search));
+        assert!(Schedule::new(SolverMode::EdftPlus, 0).is_err());
+        assert!(SolverMode::parse("EDFT+").is_ok() && SolverMode::parse("icp").is_err());
+    }
+}
