@@ -45,7 +45,7 @@ impl Roi {
         let y0 = (lo_v - margin).floor().max(0.0);
         let x1 = (hi_u + margin).ceil().min(f64::from(w));
         let y1 = (hi_v + margin).ceil().min(f64::from(h));
-        (x1 > x0 && y1 > y0).then(|| Self {
+        (x1 > x0 && y1 > y0).then_some(Self {
             x0: x0 as u32,
             y0: y0 as u32,
             width: (x1 - x0) as u32,

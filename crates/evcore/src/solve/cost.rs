@@ -174,6 +174,9 @@ pub(crate) mod testing {
     //! An analytic cost map for solver tests: the truncated distance to a set of 2D segments.
     use super::*;
 
+    /// A 3D segment (two endpoints in the object frame, metres).
+    pub type Edge = ([f32; 3], [f32; 3]);
+
     pub struct SegmentMap {
         pub segments: Vec<[(f32, f32); 2]>,
         pub tau: f32,
@@ -211,7 +214,7 @@ pub(crate) mod testing {
     }
 
     /// Corners and edges of a 0.16 × 0.21 × 0.06 m box, its edges sampled into points.
-    pub fn box_model() -> (Vec<[f32; 3]>, Vec<([f32; 3], [f32; 3])>) {
+    pub fn box_model() -> (Vec<[f32; 3]>, Vec<Edge>) {
         let (hx, hy, hz) = (0.08f32, 0.105f32, 0.03f32);
         let corner = |i: usize| {
             [
@@ -245,7 +248,7 @@ pub(crate) mod testing {
     /// The box's edges that are visible at `pose` (an edge shows when one of its faces faces the
     /// camera), sampled into points, and the edges themselves. An opaque box, unlike a wireframe,
     /// has no Necker-reversed second minimum.
-    pub fn visible_box_model(pose: &Pose) -> (Vec<[f32; 3]>, Vec<([f32; 3], [f32; 3])>) {
+    pub fn visible_box_model(pose: &Pose) -> (Vec<[f32; 3]>, Vec<Edge>) {
         let (_, edges) = box_model();
         let half = [0.08f32, 0.105, 0.03];
         let faces_camera = |axis: usize, sign: f32| {

@@ -103,8 +103,8 @@ fn normal_equations(
         for a in 0..6 {
             let wa = f64::from(w * j[a]);
             g[a] += wa * f64::from(r);
-            for b in a..6 {
-                h[idx] += wa * f64::from(j[b]);
+            for &jb in &j[a..] {
+                h[idx] += wa * f64::from(jb);
                 idx += 1;
             }
         }
