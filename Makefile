@@ -1,0 +1,51 @@
+# Everything a fresh machine needs: `make demo` and `make test` set up the venv, build the Rust
+# extension in release mode and run. Only crates.io, PyPI and Debian's registries are used.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+export VIRTUAL_ENV := $(abspath $(VENV))
+export PATH := $(abspath $(BIN)):$(HOME)/.cargo/bin:$(PATH)
+
+.PHONY: setup build demo test test-rust test-python bench lint fmt clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(VENV)/.deps: requirements.txt | $(BIN)/python
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -r requirements.txt
+	touch $@
+
+# maturin rebuilds incrementally; a no-change build takes seconds.
+build: $(VENV)/.deps
+	$(BIN)/maturin develop --release -q
+
+setup: build
+
+demo: setup
+	$(BIN)/evservo demo
+
+test-rust:
+	cargo test -p evcore
+
+test-python: setup
+	$(BIN)/python -m pytest -q
+
+test: test-rust test-python
+
+bench: setup
+	cargo bench -p evcore
+
+lint: $(VENV)/.deps
+	cargo fmt --all -- --check
+	cargo clippy -p evcore -p evpy --all-targets -- -D warnings
+	$(BIN)/ruff check python tests
+
+fmt: $(VENV)/.deps
+	cargo fmt --all
+	$(BIN)/ruff check --fix python tests
+	$(BIN)/ruff format python tests
+
+clean:
+	rm -rf target $(VENV) python/evservo/_evcore*.so

@@ -1,0 +1,65 @@
+"""4×4 pose helpers and error metrics.
+
+Convention: ``T_a_b`` is the pose of frame b expressed in frame a (so ``T_c_o`` is the object in the
+camera optical frame), a 4×4 float64 homogeneous matrix, translations in metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def as_pose(T: object, name: str = "pose") -> np.ndarray:
+    """Return ``T`` as a validated 4×4 float64 rigid transform; raise ``ValueError`` otherwise."""
+    M = np.asarray(T, dtype=np.float64)
+    if M.shape != (4, 4):
+        raise ValueError(f"{name} must be a 4x4 matrix, got shape {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    R = M[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) <= 0:
+        raise ValueError(f"{name} rotation block is not a rotation matrix")
+    if np.abs(M[3] - [0, 0, 0, 1]).max() > 1e-9:
+        raise ValueError(f"{name} bottom row must be (0, 0, 0, 1)")
+    return np.ascontiguousarray(M)
+
+
+def pose(translation_m: object = (0.0, 0.0, 0.0), rotvec_rad: object = (0.0, 0.0, 0.0)) -> np.ndarray:
+    """Pose from a translation (metres) and a rotation vector (radians)."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(np.asarray(rotvec_rad, dtype=float)).as_matrix()
+    T[:3, 3] = np.asarray(translation_m, dtype=float)
+    return T
+
+
+def pose_from_xyz_quat(x: float, y: float, z: float, qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
+    """Pose from a translation (metres) and a unit quaternion (x, y, z, w)."""
+    q = np.array([qx, qy, qz, qw], dtype=float)
+    n = np.linalg.norm(q)
+    if not np.isfinite(n) or n < 1e-9:
+        raise ValueError("quaternion must be finite and non-zero")
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(q / n).as_matrix()
+    T[:3, 3] = [x, y, z]
+    return T
+
+
+def inv(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid transform."""
+    out = np.eye(4)
+    R = T[:3, :3]
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ T[:3, 3]
+    return out
+
+
+def translation_error_m(T_a: np.ndarray, T_b: np.ndarray) -> float:
+    """Euclidean distance between the translations of two poses (metres)."""
+    return float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]))
+
+
+def rotation_error_rad(T_a: np.ndarray, T_b: np.ndarray) -> float:
+    """Geodesic angle between the rotations of two poses (radians)."""
+    R = T_a[:3, :3].T @ T_b[:3, :3]
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))

@@ -1,0 +1,123 @@
+"""The tracker end to end through the Python API, against ground truth."""
+
+import numpy as np
+import pytest
+from conftest import box_start_pose
+
+import evservo
+from evservo import geometry
+from evservo.events import EVENT_CD
+from evservo.openloop import track_batches
+from evservo.synth import edge_events
+from evservo.tracking import model_point_set
+
+
+def test_edft_plus_tracks_the_moving_box_within_3mm_and_half_a_degree(camera, box_sequence):
+    T0, batches, truth = box_sequence
+    trk = evservo.Tracker(camera, "box", T0, solver="edft+")
+    res = track_batches(trk, batches, truth)
+    assert not res.lost[-200:].any()
+    assert res.pos_rms_mm <= 3.0, res.pos_rms_mm
+    assert res.rot_rms_deg <= 0.5, res.rot_rms_deg
+    stats = trk.stats()
+    assert stats["lm_steps"] * 4 == stats["search_steps"]
+
+
+@pytest.mark.parametrize("solver", ["edopts", "edft"])
+def test_baselines_run_through_the_same_api(camera, box_sequence, solver):
+    T0, batches, truth = box_sequence
+    trk = evservo.Tracker(camera, "box", T0, solver=solver)
+    res = track_batches(trk, batches[:500], truth[:500])
+    # Both baselines hold on for the first half second of this motion; their accuracy is what the
+    # benchmark compares, so only a loose bound here.
+    assert res.pos_rms_mm < 15.0 and res.rot_rms_deg < 5.0, (res.pos_rms_mm, res.rot_rms_deg)
+    steps = trk.stats()
+    kind = "search_steps" if solver == "edopts" else "lm_steps"
+    assert steps[kind] == 5 * 500
+
+
+def _static_events(camera, T):
+    dense = model_point_set(camera, "box", T, n_points=30000, seed=3)
+    uv = camera.project(dense @ T[:3, :3].T + T[:3, 3])
+    px = np.unique(np.floor(uv + 0.5).astype(np.int64), axis=0)
+    px = px[(px[:, 0] >= 0) & (px[:, 0] < camera.width) & (px[:, 1] >= 0) & (px[:, 1] < camera.height)]
+    ev = np.zeros(len(px), dtype=EVENT_CD)
+    ev["x"], ev["y"], ev["p"], ev["t"] = px[:, 0], px[:, 1], 1, np.arange(len(px))
+    return ev
+
+
+@pytest.mark.parametrize(
+    "offset",
+    [
+        ((0.0103, 0.0, 0.0), (0.0, 0.0, 0.0)),  # 20 px sideways at Z = 0.6 m
+        ((0.0, 0.0, 0.03), (0.0, np.deg2rad(5.0), 0.0)),  # 30 mm in depth and 5°
+    ],
+    ids=["20px", "5deg+30mm"],
+)
+def test_lm_converges_to_1mm_and_0_1deg(camera, offset):
+    truth = box_start_pose(0.6)
+    off = geometry.pose(*offset)
+    start = truth.copy()
+    start[:3, :3] = off[:3, :3] @ truth[:3, :3]
+    start[:3, 3] += off[:3, 3]
+    trk = evservo.Tracker(camera, "box", start, solver="edft")
+    trk.ingest(_static_events(camera, truth))
+    est = trk.step(10)
+    assert geometry.translation_error_m(est.T_c_o, truth) <= 1e-3
+    assert np.rad2deg(geometry.rotation_error_rad(est.T_c_o, truth)) <= 0.1
+
+
+def test_threaded_tracker_follows_and_stops(camera, box_sequence):
+    T0, batches, truth = box_sequence
+    trk = evservo.Tracker(camera, "box", T0)
+    with trk:
+        trk.start()
+        assert trk.running
+        for ev in batches[:300]:
+            trk.push(ev)
+        import time
+
+        deadline = time.time() + 10
+        while trk.latest().n_events < sum(len(b) for b in batches[:300]) and time.time() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.05)
+        est = trk.latest()
+    assert not trk.running
+    assert est.seq > 0 and est.t_us == batches[299]["t"][-1]
+    assert geometry.translation_error_m(est.T_c_o, truth[299]) < 5e-3
+
+
+def test_bad_input_raises_and_leaves_the_tracker_usable(camera, box_sequence):
+    T0, batches, truth = box_sequence
+    bad = T0.copy()
+    bad[0, 3] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        evservo.Tracker(camera, "box", bad)
+    with pytest.raises(ValueError):
+        evservo.Camera(1280, 720, 0.0, 1000.0, 640.0, 360.0)
+    with pytest.raises(ValueError, match="unknown solver"):
+        evservo.Tracker(camera, "box", T0, solver="icp")
+    trk = evservo.Tracker(camera, "box", T0)
+    outside = batches[0].copy()
+    outside["x"][0] = 5000
+    with pytest.raises(ValueError, match="outside"):
+        trk.update(outside)
+    backwards = batches[1].copy()
+    backwards["t"] = backwards["t"][::-1].copy()
+    if len(backwards) > 1 and backwards["t"][0] != backwards["t"][-1]:
+        with pytest.raises(ValueError, match="backwards"):
+            trk.update(backwards)
+    res = track_batches(trk, batches[:200], truth[:200])
+    assert res.pos_rms_mm < 3.0
+
+
+def test_edge_events_fire_only_where_edges_move(camera):
+    T = box_start_pose(0.6)
+    dense = model_point_set(camera, "box", T, n_points=5000, seed=0)
+    still = edge_events(camera, dense, np.array([T, T]), np.array([0, 1000]), noise_fraction=0.0)
+    assert len(still[0]) == 0
+    moved = T.copy()
+    moved[0, 3] += 0.002
+    batch = edge_events(camera, dense, np.array([T, moved]), np.array([0, 1000]), noise_fraction=0.0)[0]
+    assert len(batch) > 500
+    assert np.all(np.diff(batch["t"]) >= 0) and batch["t"].min() >= 0 and batch["t"].max() < 1000
