@@ -13,9 +13,11 @@ pub mod image;
 pub mod rng;
 pub mod se3;
 pub mod solve;
+pub mod surface;
 
 pub use camera::{Camera, UndistortLut};
 pub use error::{Error, Result};
 pub use event::EventBatch;
 pub use image::Roi;
 pub use se3::Pose;
+pub use surface::{make_surface, EventSurface, FrontEnd};

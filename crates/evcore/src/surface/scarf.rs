@@ -1,0 +1,785 @@
+//! SCARF, the Set of Centre Active Receptive Fields (Glover et al.; `robotology/event-driven`).
+//!
+//! The grid is tiled into square blocks, shifted by half a block so that the outer half-block ring
+//! has no block of its own. Each block keeps a FIFO of the last N events that fell in the 2×2-block
+//! window centred on it. An entry from the block itself is a *centre* entry and marks its pixel
+//! active; entries from the surrounding half-blocks only occupy slots, so motion next to a block
+//! flushes its stale centre events. Nothing depends on time: a region keeps its last N events
+//! however old they are, which is what makes the active set independent of the object's speed.
+//!
+//! Storage differs from the C++ in three ways, none visible in the result:
+//! - activity is a per-pixel u16 count of centre entries (active = count > 0) instead of a float
+//!   image updated by ±C, so no residue can build up;
+//! - a ring entry is the pixel index of a centre event, or the spare index `width·height` for a
+//!   surround event; that spare cell of the count image absorbs the unconditional ±1 updates, so
+//!   the hot loop has no "is this a centre entry" branch;
+//! - a missing neighbour block points at a dummy block whose ring only ever holds the spare index,
+//!   so every event does exactly four ring updates and the loop has no "is there a block" branch.
+//!
+//! Concurrency: one [`ScarfWriter`] owns the rings and the connection table; any number of
+//! [`ScarfReader`] handles share only the count image (relaxed `AtomicU16`) and the active-pixel
+//! total. Relaxed loads and stores of 16-bit cells compile to plain moves on x86-64 and AArch64, so
+//! the writer pays nothing for being observable.
+
+use std::sync::atomic::{AtomicU16, AtomicUsize, Ordering::Relaxed};
+use std::sync::Arc;
+
+use super::{check_grid, fill_roi, EventSurface};
+use crate::error::{ensure, Result};
+use crate::image::Roi;
+
+/// Block layout derived from the grid size, the requested block size and alpha (C++ `getScarfParams`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ScarfGeometry {
+    /// Number of blocks across and down.
+    pub grid_w: u32,
+    pub grid_h: u32,
+    /// Block width and height in pixels (even); the first block starts at (block_w/2, block_h/2).
+    pub block_w: u32,
+    pub block_h: u32,
+    /// FIFO length N per block, in events.
+    pub fifo_len: u32,
+}
+
+impl ScarfGeometry {
+    /// Odd `block_px` is raised by one; the grid drops one block's worth of border; block dims are
+    /// rounded down to even; N = ⌊block_w·block_h·alpha/2⌋. `alpha` must lie in (0, 8] (8 makes
+    /// the FIFO as long as the whole 2×2-block window) and N must fit the u16 count image.
+    pub fn new(width: u32, height: u32, block_px: u32, alpha: f32) -> Result<Self> {
+        check_grid(width, height)?;
+        ensure(alpha.is_finite() && alpha > 0.0 && alpha <= 8.0, || {
+            format!("SCARF alpha {alpha} must be in (0, 8]")
+        })?;
+        ensure(block_px >= 2, || {
+            format!("SCARF block size {block_px} px must be at least 2")
+        })?;
+        let b = block_px + block_px % 2;
+        let (grid_w, grid_h) = (
+            (width / b).saturating_sub(1),
+            (height / b).saturating_sub(1),
+        );
+        ensure(grid_w >= 1 && grid_h >= 1, || {
+            format!("SCARF block {b} px leaves no block inside a {width}x{height} grid (need at least 2 blocks per side)")
+        })?;
+        let block_w = width / (grid_w + 1) / 2 * 2;
+        let block_h = height / (grid_h + 1) / 2 * 2;
+        let n = (f64::from(block_w) * f64::from(block_h) * f64::from(alpha) * 0.5).floor();
+        ensure((1.0..=f64::from(u16::MAX)).contains(&n), || {
+            format!("SCARF FIFO length {n} (block {block_w}x{block_h}, alpha {alpha}) must be in 1..=65535")
+        })?;
+        Ok(Self {
+            grid_w,
+            grid_h,
+            block_w,
+            block_h,
+            fifo_len: n as u32,
+        })
+    }
+
+    pub fn n_blocks(&self) -> usize {
+        self.grid_w as usize * self.grid_h as usize
+    }
+
+    /// The block whose centre area holds pixel (x, y), if any: (column, row).
+    pub fn block_of(&self, x: u32, y: u32) -> Option<(u32, u32)> {
+        self.connections(x, y)[0]
+    }
+
+    /// The four blocks pixel (x, y) feeds: its own, the vertical, horizontal and diagonal neighbours
+    /// on the side of its quadrant, in that order; `None` where that block is outside the grid.
+    pub fn connections(&self, x: u32, y: u32) -> [Option<(u32, u32)>; 4] {
+        let (bx, sx) = axis(x, self.block_w);
+        let (by, sy) = axis(y, self.block_h);
+        let at = |cx: i64, cy: i64| {
+            let inside = (0..i64::from(self.grid_w)).contains(&cx)
+                && (0..i64::from(self.grid_h)).contains(&cy);
+            inside.then_some((cx as u32, cy as u32))
+        };
+        [at(bx, by), at(bx, sy), at(sx, by), at(sx, sy)]
+    }
+}
+
+/// Along one axis: the block index owning coordinate `c` after the half-block shift (floor
+/// division, so −1 left of the first block), and the neighbour on the side of its half.
+fn axis(c: u32, block: u32) -> (i64, i64) {
+    let b = i64::from(block);
+    let m = i64::from(c) - b / 2;
+    let own = m.div_euclid(b);
+    let side = if m.rem_euclid(b) < b / 2 {
+        own - 1
+    } else {
+        own + 1
+    };
+    (own, side)
+}
+
+/// Row of a pixel index by multiply and shift instead of a division (a 32-bit `div` alone costs
+/// more than the rest of the table lookup). With m = ⌈2^42/w⌉ the product's error stays below
+/// p/2^42 < w·2^14/2^42 ≤ 1/w for w < 2^14 (and is zero for w = 2^14), too small to cross an
+/// integer, and p·m < 2^57 cannot overflow; valid for every index of a grid that passed `check_grid`.
+#[derive(Debug, Clone, Copy)]
+struct RowOf {
+    width: u32,
+    m: u64,
+}
+
+impl RowOf {
+    fn new(width: u32) -> Self {
+        Self {
+            width,
+            m: (1u64 << 42).div_ceil(u64::from(width)),
+        }
+    }
+
+    /// (x, y) of pixel index `p`.
+    #[inline(always)]
+    fn split(self, p: u32) -> (u32, u32) {
+        let y = ((u64::from(p) * self.m) >> 42) as u32;
+        (p - y * self.width, y)
+    }
+}
+
+/// Per row or column: the padded-grid offsets of the own and the side block along that axis
+/// (rows pre-multiplied by the padded grid width), and whether the own block is a real one.
+#[derive(Debug, Clone, Copy)]
+struct AxisEntry {
+    own: u32,
+    side: u32,
+    real: bool,
+}
+
+/// Axis table for coordinates 0..len; `pad` is the lowest block index any coordinate reaches (−1),
+/// `scale` the stride of one step along this axis in the padded grid.
+fn axis_table(len: u32, block: u32, grid: u32, pad: i64, scale: u32) -> Box<[AxisEntry]> {
+    (0..len)
+        .map(|c| {
+            let (own, side) = axis(c, block);
+            AxisEntry {
+                own: (own - pad) as u32 * scale,
+                side: (side - pad) as u32 * scale,
+                real: (0..i64::from(grid)).contains(&own),
+            }
+        })
+        .collect()
+}
+
+/// What readers see: the count image (plus one spare cell at index width·height) and the total.
+#[derive(Debug)]
+struct Shared {
+    width: u32,
+    height: u32,
+    counts: Box<[AtomicU16]>,
+    active: AtomicUsize,
+}
+
+/// The single writer: ingests events. Not `Clone`, so there is exactly one per SCARF.
+///
+/// Blocks live on a padded grid with an extra ring of blocks wherever a pixel's neighbour would
+/// fall outside the real grid. Those pad blocks have no centre pixels, so their FIFOs only ever
+/// hold the spare index; writing to them is cheaper than branching around them. The block of a
+/// pixel is `rows[y].own + cols[x].own` etc., so the lookup tables are per row and per column
+/// (a few KiB, always in L1) instead of 16 bytes per pixel (15 MB at 1280×720, missed on every
+/// noise event).
+#[derive(Debug)]
+pub struct ScarfWriter {
+    shared: Arc<Shared>,
+    geometry: ScarfGeometry,
+    row_of: RowOf,
+    cols: Box<[AxisEntry]>,
+    rows: Box<[AxisEntry]>,
+    /// Per padded block, the slot written last (0..N); kept apart from the rings so this hot,
+    /// small array stays cached while the rings miss.
+    heads: Box<[u16]>,
+    /// Per padded block, N entries: a centre event's pixel index or the spare index.
+    rings: Box<[u32]>,
+    /// Writer-side copy of the active-pixel total, published after each batch.
+    active: usize,
+}
+
+/// A cheap, cloneable read handle; safe to use from any thread while the writer runs.
+///
+/// Reads are not synchronised with the writer, so a reader may see a batch half applied, or one
+/// pixel between the eviction and the insertion of the same event (a count one below its final
+/// value for a moment). Every value read is a count the pixel had, or is about to have, so a mask
+/// is at worst one event stale at a few pixels; the tracker treats it as a noisy sample anyway.
+#[derive(Debug, Clone)]
+pub struct ScarfReader {
+    shared: Arc<Shared>,
+}
+
+/// A SCARF that owns its writer and one reader; [`Scarf::split`] hands them out separately.
+#[derive(Debug)]
+pub struct Scarf {
+    writer: ScarfWriter,
+    reader: ScarfReader,
+}
+
+impl Scarf {
+    pub fn new(width: u32, height: u32, block_px: u32, alpha: f32) -> Result<Self> {
+        let geometry = ScarfGeometry::new(width, height, block_px, alpha)?;
+        let n_pixels = width as usize * height as usize;
+        // Block indices reached along an axis run from −1 to the side block of the last pixel.
+        let span = |len: u32, block: u32| axis(len - 1, block).1.max(axis(len - 1, block).0) + 2;
+        let (padded_w, padded_h) = (
+            span(width, geometry.block_w),
+            span(height, geometry.block_h),
+        );
+        let n_padded = (padded_w * padded_h) as usize;
+        let ring_words = n_padded * geometry.fifo_len as usize;
+        ensure(u32::try_from(ring_words).is_ok(), || {
+            format!("SCARF rings of {ring_words} words exceed u32 offsets")
+        })?;
+        let cols = axis_table(width, geometry.block_w, geometry.grid_w, -1, 1);
+        let rows = axis_table(
+            height,
+            geometry.block_h,
+            geometry.grid_h,
+            -1,
+            padded_w as u32,
+        );
+        let counts = (0..=n_pixels).map(|_| AtomicU16::new(0)).collect();
+        let shared = Arc::new(Shared {
+            width,
+            height,
+            counts,
+            active: AtomicUsize::new(0),
+        });
+        let mut writer = ScarfWriter {
+            shared: Arc::clone(&shared),
+            geometry,
+            row_of: RowOf::new(width),
+            cols,
+            rows,
+            heads: vec![0; n_padded].into_boxed_slice(),
+            rings: vec![0; ring_words].into_boxed_slice(),
+            active: 0,
+        };
+        writer.reset();
+        Ok(Self {
+            writer,
+            reader: ScarfReader { shared },
+        })
+    }
+
+    pub fn geometry(&self) -> ScarfGeometry {
+        self.writer.geometry
+    }
+
+    /// Another read handle onto this SCARF.
+    pub fn reader(&self) -> ScarfReader {
+        self.reader.clone()
+    }
+
+    /// Separate the writer (for the ingest thread) from a reader (for the tracker thread).
+    pub fn split(self) -> (ScarfWriter, ScarfReader) {
+        (self.writer, self.reader)
+    }
+
+    pub fn writer(&mut self) -> &mut ScarfWriter {
+        &mut self.writer
+    }
+}
+
+impl ScarfWriter {
+    /// Ingest events at rectified pixel indices; indices ≥ width·height are skipped.
+    pub fn ingest(&mut self, pixels: &[u32]) {
+        let row_of = self.row_of;
+        let spare = self.shared.counts.len() as u32 - 1;
+        let n = self.geometry.fifo_len as usize;
+        let counts = &*self.shared.counts;
+        let (cols, rows) = (&*self.cols, &*self.rows);
+        let heads = &mut *self.heads;
+        let rings = &mut *self.rings;
+        let mut active = self.active;
+        for &p in pixels {
+            if p >= spare {
+                continue;
+            }
+            let (x, y) = row_of.split(p);
+            // SAFETY: p < width·height, so x < width = cols.len() and y < height = rows.len().
+            let (c, r) = unsafe {
+                (
+                    cols.get_unchecked(x as usize),
+                    rows.get_unchecked(y as usize),
+                )
+            };
+            let centre = if c.real && r.real { p } else { spare };
+            let blocks = [
+                r.own + c.own,
+                r.side + c.own,
+                r.own + c.side,
+                r.side + c.side,
+            ];
+            for (k, b) in blocks.into_iter().enumerate() {
+                let b = b as usize;
+                // SAFETY: the axis tables only hold offsets inside the padded grid, which has
+                // heads.len() blocks of n ring words each; heads stay in 0..n.
+                let head = unsafe { heads.get_unchecked_mut(b) };
+                let slot = if usize::from(*head) + 1 >= n {
+                    0
+                } else {
+                    *head + 1
+                };
+                *head = slot;
+                let entry = unsafe { rings.get_unchecked_mut(b * n + usize::from(slot)) };
+                let old = std::mem::replace(entry, if k == 0 { centre } else { spare });
+                // SAFETY: ring entries are pixel indices < spare or spare itself, and counts has
+                // spare + 1 cells.
+                let cell = unsafe { counts.get_unchecked(old as usize) };
+                let v = cell.load(Relaxed).wrapping_sub(1);
+                cell.store(v, Relaxed);
+                active -= usize::from(v == 0 && old != spare);
+            }
+            let cell = unsafe { counts.get_unchecked(centre as usize) };
+            let v = cell.load(Relaxed);
+            cell.store(v.wrapping_add(1), Relaxed);
+            active += usize::from(v == 0 && centre != spare);
+        }
+        self.active = active;
+        self.shared.active.store(active, Relaxed);
+    }
+
+    /// Empty every FIFO and the count image.
+    pub fn reset(&mut self) {
+        let spare = self.shared.counts.len() as u32 - 1;
+        self.rings.fill(spare);
+        self.heads.fill(0);
+        for c in self.shared.counts.iter() {
+            c.store(0, Relaxed);
+        }
+        self.active = 0;
+        self.shared.active.store(0, Relaxed);
+    }
+
+    pub fn geometry(&self) -> ScarfGeometry {
+        self.geometry
+    }
+
+    pub fn reader(&self) -> ScarfReader {
+        ScarfReader {
+            shared: Arc::clone(&self.shared),
+        }
+    }
+}
+
+impl ScarfReader {
+    pub fn width(&self) -> u32 {
+        self.shared.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.shared.height
+    }
+
+    /// Number of centre entries for pixel (x, y) in its block's FIFO; 0 outside the grid.
+    pub fn count(&self, x: u32, y: u32) -> u16 {
+        if x >= self.shared.width || y >= self.shared.height {
+            return 0;
+        }
+        self.shared.counts[y as usize * self.shared.width as usize + x as usize].load(Relaxed)
+    }
+
+    /// Number of active pixels as of the writer's last completed batch.
+    pub fn active_count(&self) -> usize {
+        self.shared.active.load(Relaxed)
+    }
+
+    /// See [`EventSurface::fill_mask`].
+    pub fn fill_mask(&self, roi: Roi, out: &mut [u8]) {
+        let counts = &self.shared.counts;
+        fill_roi(
+            self.shared.width,
+            self.shared.height,
+            roi,
+            out,
+            |start, dst| {
+                let src = &counts[start..start + dst.len()];
+                for (d, c) in dst.iter_mut().zip(src) {
+                    *d = u8::from(c.load(Relaxed) != 0);
+                }
+            },
+        );
+    }
+}
+
+impl EventSurface for Scarf {
+    fn ingest(&mut self, pixels: &[u32], polarity: &[i16]) {
+        // Polarity is stored but never drawn in the reference, so only the pixel matters here.
+        self.writer
+            .ingest(&pixels[..pixels.len().min(polarity.len())]);
+    }
+
+    fn fill_mask(&self, roi: Roi, out: &mut [u8]) {
+        self.reader.fill_mask(roi, out);
+    }
+
+    fn width(&self) -> u32 {
+        self.reader.width()
+    }
+
+    fn height(&self) -> u32 {
+        self.reader.height()
+    }
+
+    fn name(&self) -> &'static str {
+        "scarf"
+    }
+
+    fn reset(&mut self) {
+        self.writer.reset();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+    use crate::surface::FixedCount;
+    use std::collections::VecDeque;
+
+    fn mask(s: &dyn EventSurface, roi: Roi) -> Vec<u8> {
+        let mut m = vec![0u8; roi.area()];
+        s.fill_mask(roi, &mut m);
+        m
+    }
+
+    fn ones(m: &[u8]) -> usize {
+        m.iter().filter(|&&v| v == 1).count()
+    }
+
+    fn iou(a: &[u8], b: &[u8]) -> f64 {
+        let inter = a.iter().zip(b).filter(|(&x, &y)| x == 1 && y == 1).count();
+        let union = a.iter().zip(b).filter(|(&x, &y)| x == 1 || y == 1).count();
+        inter as f64 / union as f64
+    }
+
+    fn shuffle(v: &mut [u32], rng: &mut Rng) {
+        for i in (1..v.len()).rev() {
+            v.swap(i, rng.below(i as u64 + 1) as usize);
+        }
+    }
+
+    /// A random merge of two streams that keeps each stream's own order.
+    fn interleave(a: &[u32], b: &[u32], rng: &mut Rng) -> Vec<u32> {
+        let (mut i, mut j) = (0, 0);
+        let mut out = Vec::with_capacity(a.len() + b.len());
+        while i < a.len() || j < b.len() {
+            let left = (a.len() - i) as u64;
+            if rng.below(left + (b.len() - j) as u64) < left {
+                out.push(a[i]);
+                i += 1;
+            } else {
+                out.push(b[j]);
+                j += 1;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn row_of_matches_division_at_every_row_boundary() {
+        for w in [1u32, 2, 3, 7, 346, 640, 1280, 4095, 9999, 16383, 16384] {
+            let d = RowOf::new(w);
+            for y in (0..16384u32).step_by(7).chain([16382, 16383]) {
+                for p in [y * w, y * w + w - 1, y * w + w / 2] {
+                    assert_eq!(d.split(p), (p % w, p / w), "w {w} p {p}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn geometry_matches_the_worked_numbers() {
+        let g = |w, h, b| {
+            let g = ScarfGeometry::new(w, h, b, 1.0).unwrap();
+            (g.grid_w, g.grid_h, g.block_w, g.block_h, g.fifo_len)
+        };
+        assert_eq!(g(640, 480, 14), (44, 33, 14, 14, 98));
+        assert_eq!(g(640, 480, 10), (63, 47, 10, 10, 50));
+        assert_eq!(g(640, 480, 11), (52, 39, 12, 12, 72));
+        assert_eq!(g(1280, 720, 14), (90, 50, 14, 14, 98));
+        assert_eq!(g(346, 260, 14), (23, 17, 14, 14, 98));
+        assert_eq!(ScarfGeometry::new(640, 480, 14, 0.5).unwrap().fifo_len, 49);
+        assert!(ScarfGeometry::new(27, 480, 14, 1.0).is_err());
+        assert!(ScarfGeometry::new(640, 480, 14, 0.0).is_err());
+        assert!(
+            ScarfGeometry::new(640, 480, 2, 0.1).is_err(),
+            "N = 0 must be refused"
+        );
+        assert_eq!(
+            Scarf::new(346, 260, 14, 1.0).unwrap().geometry(),
+            ScarfGeometry::new(346, 260, 14, 1.0).unwrap()
+        );
+    }
+
+    /// Straightforward port of the C++ update (a deque per block, skipped missing neighbours,
+    /// explicit centre flags): the branch-free writer must agree with it count for count.
+    struct Reference {
+        geometry: ScarfGeometry,
+        width: u32,
+        fifos: Vec<VecDeque<Option<u32>>>,
+        counts: Vec<u16>,
+    }
+
+    impl Reference {
+        fn new(width: u32, height: u32, block_px: u32, alpha: f32) -> Self {
+            let geometry = ScarfGeometry::new(width, height, block_px, alpha).unwrap();
+            let n = geometry.fifo_len as usize;
+            let fifos = vec![VecDeque::from(vec![None; n]); geometry.n_blocks()];
+            Self {
+                geometry,
+                width,
+                fifos,
+                counts: vec![0; (width * height) as usize],
+            }
+        }
+
+        fn update(&mut self, p: u32) {
+            let conns = self.geometry.connections(p % self.width, p / self.width);
+            for (k, conn) in conns.into_iter().enumerate() {
+                let Some((bx, by)) = conn else { continue };
+                let fifo = &mut self.fifos[(by * self.geometry.grid_w + bx) as usize];
+                if let Some(Some(old)) = fifo.pop_front() {
+                    self.counts[old as usize] -= 1;
+                }
+                fifo.push_back((k == 0).then_some(p));
+                if k == 0 {
+                    self.counts[p as usize] += 1;
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn agrees_with_a_plain_port_of_the_reference() {
+        let (w, h) = (120u32, 90u32);
+        let mut rng = Rng::new(3);
+        // Half uniform (border pixels included), half clustered so FIFOs wrap many times.
+        let pixels: Vec<u32> = (0..60_000)
+            .map(|i| {
+                if i % 2 == 0 {
+                    rng.below(u64::from(w * h)) as u32
+                } else {
+                    (40 + rng.below(20) as u32) * w + 30 + rng.below(25) as u32
+                }
+            })
+            .collect();
+        let mut s = Scarf::new(w, h, 11, 0.7).unwrap();
+        let mut r = Reference::new(w, h, 11, 0.7);
+        s.writer().ingest(&pixels[..12_345]);
+        s.writer().ingest(&pixels[12_345..]);
+        pixels.iter().for_each(|&p| r.update(p));
+        let reader = s.reader();
+        let got: Vec<u16> = (0..w * h).map(|p| reader.count(p % w, p / w)).collect();
+        assert_eq!(got, r.counts);
+        assert_eq!(
+            reader.active_count(),
+            r.counts.iter().filter(|&&c| c > 0).count()
+        );
+        assert!(
+            reader.active_count() > 450,
+            "the test must exercise a well-filled set"
+        );
+    }
+
+    #[test]
+    fn border_is_never_drawn_and_fifos_are_bounded() {
+        let (w, h) = (346u32, 260u32);
+        let mut s = Scarf::new(w, h, 14, 1.0).unwrap();
+        let g = s.geometry();
+        let mut rng = Rng::new(11);
+        let pixels: Vec<u32> = (0..400_000)
+            .map(|_| rng.below(u64::from(w * h)) as u32)
+            .collect();
+        s.ingest(&pixels, &vec![1; pixels.len()]);
+        let m = mask(&s, Roi::full(w, h));
+        let (x0, y0) = (g.block_w / 2, g.block_h / 2);
+        let (x1, y1) = (x0 + g.grid_w * g.block_w, y0 + g.grid_h * g.block_h);
+        let inner = Roi {
+            x0,
+            y0,
+            width: x1 - x0,
+            height: y1 - y0,
+        };
+        let mut inner_active = 0;
+        for (i, &v) in m.iter().enumerate() {
+            let (x, y) = (i as u32 % w, i as u32 / w);
+            if inner.contains(x, y) {
+                inner_active += usize::from(v);
+            } else {
+                assert_eq!(v, 0, "border pixel ({x}, {y}) drawn");
+            }
+        }
+        assert_eq!(inner_active, s.reader().active_count());
+        // Uniform input: each FIFO holds about a quarter centre entries, so ≈ N/4 of 196 pixels.
+        assert!(inner_active > g.n_blocks() * 15, "{inner_active}");
+        // Centre entries per block never exceed N; events only inside one block fill it exactly.
+        let block_sum = |s: &Scarf, bx: u32, by: u32| -> u32 {
+            let r = s.reader();
+            let mut sum = 0;
+            for y in y0 + by * g.block_h..y0 + (by + 1) * g.block_h {
+                for x in x0 + bx * g.block_w..x0 + (bx + 1) * g.block_w {
+                    sum += u32::from(r.count(x, y));
+                }
+            }
+            sum
+        };
+        for by in 0..g.grid_h {
+            for bx in 0..g.grid_w {
+                assert!(block_sum(&s, bx, by) <= g.fifo_len);
+            }
+        }
+        let (bx, by) = (5, 4);
+        let own: Vec<u32> = (0..1000)
+            .map(|_| {
+                let x = x0 + bx * g.block_w + rng.below(u64::from(g.block_w)) as u32;
+                let y = y0 + by * g.block_h + rng.below(u64::from(g.block_h)) as u32;
+                y * w + x
+            })
+            .collect();
+        s.writer().ingest(&own);
+        assert_eq!(block_sum(&s, bx, by), g.fifo_len);
+    }
+
+    /// A vertical edge (rows 40..220, one event per pixel per position) sweeps x = 30..190.
+    /// Background activity arrives at a constant rate *per unit time*: a flickering patch at
+    /// x 250..330 (1500 events per step) and sparse sensor-wide noise (2 per step). At 1× the
+    /// edge advances 1 px per step, at 10× it advances 10 px per step, so at 10× there are 10×
+    /// fewer background events per edge position. Returns (SCARF, fixed-count 8000) masks of the
+    /// final edge's neighbourhood x 150..220 (a tracker's ROI), clear of the flicker's blocks.
+    fn sweep(speed: u32, seed: u64) -> (Vec<u8>, Vec<u8>) {
+        let (w, h) = (346u32, 260u32);
+        let mut rng = Rng::new(seed);
+        let mut scarf = Scarf::new(w, h, 14, 1.0).unwrap();
+        let mut fixed = FixedCount::new(w, h, 8000).unwrap();
+        let mut x = 30;
+        while x < 190 {
+            // Edge positions stay in time order; rows fire in random order within a position.
+            let mut edge = Vec::new();
+            for xe in x..(x + speed).min(190) {
+                let mut column: Vec<u32> = (40..220).map(|y| y * w + xe).collect();
+                shuffle(&mut column, &mut rng);
+                edge.extend(column);
+            }
+            let mut background: Vec<u32> = (0..1500)
+                .map(|_| (30 + rng.below(200) as u32) * w + 250 + rng.below(80) as u32)
+                .collect();
+            background.extend((0..2).map(|_| rng.below(u64::from(w * h)) as u32));
+            let step = interleave(&edge, &background, &mut rng);
+            let pol = vec![1i16; step.len()];
+            scarf.ingest(&step, &pol);
+            fixed.ingest(&step, &pol);
+            x += speed;
+        }
+        let roi = Roi {
+            x0: 150,
+            y0: 0,
+            width: 70,
+            height: h,
+        };
+        (mask(&scarf, roi), mask(&fixed, roi))
+    }
+
+    #[test]
+    fn active_set_is_velocity_invariant_unlike_fixed_count() {
+        let (scarf_slow, fixed_slow) = sweep(1, 21);
+        let (scarf_fast, fixed_fast) = sweep(10, 22);
+        let (ns, nf) = (ones(&scarf_slow), ones(&scarf_fast));
+        let scarf_iou = iou(&scarf_slow, &scarf_fast);
+        let (fs, ff) = (ones(&fixed_slow), ones(&fixed_fast));
+        let fixed_iou = iou(&fixed_slow, &fixed_fast);
+        eprintln!("SCARF 1x {ns} 10x {nf} IoU {scarf_iou:.3}; fixed-count 1x {fs} 10x {ff} IoU {fixed_iou:.3}");
+        // Measured: SCARF 721 vs 703 active, IoU 0.86 (the oldest, half-evicted column differs
+        // with the random row order, and 1× holds 10× more noise); fixed-count 860 vs 4368
+        // active, IoU 0.20 (a 5-column trail against a 24-column one).
+        assert!(ns > 500, "the edge must be drawn: {ns}");
+        assert!(scarf_iou > 0.8, "SCARF IoU {scarf_iou}");
+        assert!(
+            (ns as f64 / nf as f64 - 1.0).abs() < 0.08,
+            "SCARF {ns} vs {nf}"
+        );
+        assert!(fixed_iou < 0.3, "fixed-count IoU {fixed_iou}");
+        assert!(ff as f64 > 4.0 * fs as f64, "fixed-count {fs} vs {ff}");
+    }
+
+    #[test]
+    fn active_set_holds_when_events_stop_or_fall_elsewhere() {
+        let (w, h) = (346u32, 260u32);
+        let mut s = Scarf::new(w, h, 14, 1.0).unwrap();
+        let edge: Vec<u32> = (60..70)
+            .flat_map(|x| (50..150).map(move |y| y * w + x))
+            .collect();
+        s.ingest(&edge, &vec![0; edge.len()]);
+        let roi = Roi {
+            x0: 30,
+            y0: 20,
+            width: 70,
+            height: 160,
+        };
+        let before = mask(&s, roi);
+        assert!(ones(&before) > 300, "{}", ones(&before));
+        s.ingest(&[], &[]);
+        assert_eq!(mask(&s, roi), before);
+        // Plenty of activity more than a block away from the ROI does not touch it.
+        let mut rng = Rng::new(5);
+        let far: Vec<u32> = (0..200_000)
+            .map(|_| rng.below(u64::from(h)) as u32 * w + 150 + rng.below(196) as u32)
+            .collect();
+        s.ingest(&far, &vec![1; far.len()]);
+        assert_eq!(mask(&s, roi), before);
+    }
+
+    #[test]
+    fn concurrent_reader_sees_a_consistent_final_state() {
+        let (w, h) = (640u32, 480u32);
+        let mut rng = Rng::new(99);
+        let pixels: Vec<u32> = (0..3_000_000)
+            .map(|i| {
+                let t = (i / 20_000) as u32;
+                if i % 5 == 0 {
+                    rng.below(u64::from(w * h)) as u32
+                } else {
+                    (100 + rng.below(200) as u32) * w + 50 + 3 * t + rng.below(3) as u32
+                }
+            })
+            .collect();
+        let mut single = Scarf::new(w, h, 14, 1.0).unwrap();
+        single.writer().ingest(&pixels);
+        let (mut writer, reader) = Scarf::new(w, h, 14, 1.0).unwrap().split();
+        let done = std::sync::atomic::AtomicBool::new(false);
+        let roi = Roi {
+            x0: 20,
+            y0: 40,
+            width: 400,
+            height: 400,
+        };
+        let reads = std::thread::scope(|scope| {
+            let r = reader.clone();
+            let done = &done;
+            let watcher = scope.spawn(move || {
+                let mut buf = vec![0u8; roi.area()];
+                let mut reads = 0usize;
+                while !done.load(std::sync::atomic::Ordering::Acquire) {
+                    r.fill_mask(roi, &mut buf);
+                    assert!(ones(&buf) <= roi.area());
+                    reads += 1;
+                }
+                reads
+            });
+            for chunk in pixels.chunks(4096) {
+                writer.ingest(chunk);
+            }
+            done.store(true, std::sync::atomic::Ordering::Release);
+            watcher.join().unwrap()
+        });
+        assert!(reads > 0);
+        let expected = single.reader();
+        let full = Roi::full(w, h);
+        let (mut a, mut b) = (vec![0u8; full.area()], vec![0u8; full.area()]);
+        reader.fill_mask(full, &mut a);
+        expected.fill_mask(full, &mut b);
+        assert_eq!(a, b);
+        assert_eq!(reader.active_count(), expected.active_count());
+        assert!((0..w * h).all(|p| reader.count(p % w, p / w) == expected.count(p % w, p / w)));
+    }
+}
