@@ -223,7 +223,7 @@ impl FieldLevel {
     /// Central differences of `value`, one-sided on the roi border.
     fn compute_gradient(&mut self) {
         let (w, h) = (self.roi.width as usize, self.roi.height as usize);
-        self.grad.clear();
+        // Every entry is overwritten below, so only new ones need initialising.
         self.grad.resize(w * h, [0.0, 0.0]);
         if w == 0 || h == 0 {
             return;
@@ -233,19 +233,24 @@ impl FieldLevel {
             let row = &val[y * w..(y + 1) * w];
             let up = &val[y.saturating_sub(1) * w..][..w];
             let down = &val[(y + 1).min(h - 1) * w..][..w];
-            let sy = if y == 0 || y == h - 1 { 1.0 } else { 0.5 };
-            let sy = if h == 1 { 0.0 } else { sy };
-            for x in 0..w {
-                let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
-                let sx = if r - l == 2 {
-                    0.5
-                } else if r > l {
-                    1.0
-                } else {
-                    0.0
-                };
-                grow[x] = [(row[r] - row[l]) * sx, (down[x] - up[x]) * sy];
+            // A one-pixel axis has no slope; on its border the difference is one-sided.
+            let sy = match h {
+                1 => 0.0,
+                _ if y == 0 || y == h - 1 => 1.0,
+                _ => 0.5,
+            };
+            for (g, (&u, &d)) in grow.iter_mut().zip(up.iter().zip(down)) {
+                g[1] = (d - u) * sy;
             }
+            if w == 1 {
+                grow[0][0] = 0.0;
+                continue;
+            }
+            for (g, win) in grow[1..w - 1].iter_mut().zip(row.windows(3)) {
+                g[0] = (win[2] - win[0]) * 0.5;
+            }
+            grow[0][0] = row[1] - row[0];
+            grow[w - 1][0] = row[w - 1] - row[w - 2];
         }
     }
 }
@@ -273,18 +278,21 @@ pub struct DistanceField {
     built: u32,
     /// Returned by [`Self::level`] when `levels` is empty.
     absent: FieldLevel,
+    /// Pooled masks of levels 1 and 2, and one row of pooling work.
+    pooled: [Vec<u8>; 2],
+    pair_row: Vec<u8>,
     scratch: Scratch,
 }
 
 /// Buffers reused across builds.
 #[derive(Debug, Clone, Default)]
 struct Scratch {
-    /// Pooled masks of levels 1 and 2.
-    masks: [Vec<u8>; 2],
     /// Capped vertical distances (column pass).
     col: Vec<u8>,
     /// One padded row of squared vertical distances.
     row: Vec<i16>,
+    /// f as a function of the integer squared distance.
+    lut: Vec<f32>,
     /// Squared vertical distances (exact fallback path).
     d2: Vec<f64>,
     fh: FhScratch,
@@ -302,6 +310,8 @@ impl DistanceField {
             levels,
             built: 0,
             absent,
+            pooled: Default::default(),
+            pair_row: Vec::new(),
             scratch: Scratch::default(),
         })
     }
@@ -354,10 +364,14 @@ impl DistanceField {
         let (tau, configured) = (self.params.tau_px, self.params.levels as usize);
         self.absent.tau_px = tau;
         let Self {
-            levels, scratch, ..
+            levels,
+            pooled,
+            pair_row,
+            scratch,
+            ..
         } = self;
         levels.resize_with(configured, || FieldLevel::empty(0, tau));
-        let [m1, m2] = &mut scratch.masks;
+        let [m1, m2] = pooled;
         for l in 0..n_levels {
             let lvl = &mut levels[l as usize];
             lvl.level = l;
@@ -366,28 +380,18 @@ impl DistanceField {
             let level_mask: &[u8] = match l {
                 0 => mask,
                 1 => {
-                    or_pool(mask, roi, m1);
+                    or_pool(mask, roi, m1, pair_row);
                     m1
                 }
                 _ => {
-                    or_pool(m1, roi.at_level(1), m2);
+                    or_pool(m1, roi.at_level(1), m2, pair_row);
                     m2
                 }
             };
             let (w, h) = (lvl.roi.width as usize, lvl.roi.height as usize);
-            lvl.value.clear();
+            // Every entry is overwritten, so only new ones need initialising.
             lvl.value.resize(w * h, 0.0);
-            truncated_field(
-                level_mask,
-                w,
-                h,
-                tau,
-                &mut lvl.value,
-                &mut scratch.col,
-                &mut scratch.row,
-                &mut scratch.d2,
-                &mut scratch.fh,
-            );
+            truncated_field(level_mask, w, h, tau, &mut lvl.value, scratch);
             if with_gradient {
                 lvl.compute_gradient();
             } else {
@@ -413,18 +417,38 @@ impl DistanceField {
 
 /// OR-pools 2×2 blocks of `src` (a mask over `roi`) into the mask of `roi.at_level(1)`, with
 /// blocks aligned to the absolute grid so the pyramid nests.
-fn or_pool(src: &[u8], roi: Roi, dst: &mut Vec<u8>) {
+fn or_pool(src: &[u8], roi: Roi, dst: &mut Vec<u8>, pair_row: &mut Vec<u8>) {
     let half = roi.at_level(1);
     let (sw, sh) = (roi.width as usize, roi.height as usize);
     let (dw, dh) = (half.width as usize, half.height as usize);
-    dst.clear();
+    // Every entry is overwritten below, so only new ones need initialising.
     dst.resize(dw * dh, 0);
+    if dw == 0 {
+        return;
+    }
     // Offset of the roi inside its first 2×2 block (0 or 1) in each axis.
     let (ox, oy) = ((roi.x0 & 1) as usize, (roi.y0 & 1) as usize);
-    for (sy, srow) in src.chunks_exact(sw.max(1)).take(sh).enumerate() {
-        let drow = &mut dst[((sy + oy) / 2) * dw..][..dw];
-        for (sx, &m) in srow.iter().enumerate() {
-            drow[(sx + ox) / 2] |= u8::from(m != 0);
+    // The OR of two source rows, placed so that destination pixel X pools entries 2X and 2X+1;
+    // the (at most two) slots outside the roi stay 0.
+    pair_row.clear();
+    pair_row.resize(2 * dw, 0);
+    let source_row = |r: Option<usize>| r.filter(|&r| r < sh).map(|r| &src[r * sw..(r + 1) * sw]);
+    for (dy, drow) in dst.chunks_exact_mut(dw).enumerate() {
+        let pair = &mut pair_row[ox..ox + sw];
+        match (
+            source_row((2 * dy).checked_sub(oy)),
+            source_row(Some(2 * dy + 1 - oy)),
+        ) {
+            (Some(a), Some(b)) => {
+                for ((p, &a), &b) in pair.iter_mut().zip(a).zip(b) {
+                    *p = a | b;
+                }
+            }
+            (Some(a), None) | (None, Some(a)) => pair.copy_from_slice(a),
+            (None, None) => pair.fill(0),
+        }
+        for (d, two) in drow.iter_mut().zip(pair_row.chunks_exact(2)) {
+            *d = two[0] | two[1];
         }
     }
 }
@@ -437,14 +461,18 @@ fn truncated_field(
     h: usize,
     tau: f32,
     out: &mut [f32],
-    col: &mut Vec<u8>,
-    row: &mut Vec<i16>,
-    d2: &mut Vec<f64>,
-    fh: &mut FhScratch,
+    scratch: &mut Scratch,
 ) {
     if w == 0 || h == 0 {
         return;
     }
+    let Scratch {
+        col,
+        row,
+        lut,
+        d2,
+        fh,
+    } = scratch;
     let window = tau.floor() as usize;
     if window > MAX_WINDOW_PX {
         exact_squared_edt(mask, w, h, out, d2, fh);
@@ -461,15 +489,18 @@ fn truncated_field(
     let padded = window + w.div_ceil(LANES) * LANES + window;
     row.clear();
     row.resize(padded, i16::from(cap) * i16::from(cap));
-    let mut d2row = [0i16; LANES];
+    // Squared distances are small integers (at most cap²), so f comes from a table.
+    let top = usize::from(cap) * usize::from(cap);
+    lut.clear();
+    lut.extend((0..=top).map(|d2| rounded_distance((d2 as f32).sqrt(), tau)));
     for (g, orow) in col.chunks_exact(w).zip(out.chunks_exact_mut(w)) {
         for (p, &gv) in row[window..window + w].iter_mut().zip(g) {
             *p = i16::from(gv) * i16::from(gv);
         }
         for (x0, oblock) in (0..w).step_by(LANES).zip(orow.chunks_mut(LANES)) {
-            window_min(&row[x0..x0 + 2 * window + LANES], window, &mut d2row);
-            for (o, &d) in oblock.iter_mut().zip(&d2row) {
-                *o = rounded_distance(f32::from(d).sqrt(), tau);
+            let d2 = window_min(&row[x0..x0 + 2 * window + LANES], window);
+            for (o, &d) in oblock.iter_mut().zip(&d2) {
+                *o = lut[(d as usize).min(top)];
             }
         }
     }
@@ -477,32 +508,48 @@ fn truncated_field(
 
 /// Vertical distance to the nearest active pixel of the same column, capped at `cap`.
 fn column_pass(mask: &[u8], w: usize, h: usize, cap: u8, col: &mut Vec<u8>) {
-    col.clear();
-    col.resize(w * h, cap);
-    // Row-wise sweeps so each step is a vectorisable operation over a whole row.
+    // Every entry is overwritten below, so only new ones need initialising.
+    col.resize(w * h, 0);
+    // Row-wise sweeps so each step is a vectorisable operation over a whole row; the first row
+    // sees a virtual row of `cap` above it.
     for (g, &m) in col[..w].iter_mut().zip(&mask[..w]) {
-        *g = if m != 0 { 0 } else { cap };
+        *g = cap & inactive(m);
     }
     for y in 1..h {
-        let (upper, lower) = col.split_at_mut(y * w);
-        let above = &upper[(y - 1) * w..];
-        for ((g, &m), &a) in lower[..w]
-            .iter_mut()
-            .zip(&mask[y * w..(y + 1) * w])
-            .zip(above)
-        {
-            *g = if m != 0 {
-                0
-            } else {
-                a.saturating_add(1).min(cap)
-            };
-        }
+        let (done, rest) = col.split_at_mut(y * w);
+        sweep_down(
+            &mut rest[..w],
+            &done[(y - 1) * w..],
+            &mask[y * w..(y + 1) * w],
+            cap,
+        );
     }
     for y in (0..h.saturating_sub(1)).rev() {
         let (upper, lower) = col.split_at_mut((y + 1) * w);
-        for (g, &below) in upper[y * w..].iter_mut().zip(&lower[..w]) {
-            *g = (*g).min(below.saturating_add(1));
-        }
+        sweep_up(&mut upper[y * w..], &lower[..w]);
+    }
+}
+
+/// One row of the downward sweep: 0 on active pixels, else one more than above, capped.
+#[inline]
+fn sweep_down(row: &mut [u8], above: &[u8], mask: &[u8], cap: u8) {
+    for ((g, &a), &m) in row.iter_mut().zip(above).zip(mask) {
+        *g = a.saturating_add(1).min(cap) & inactive(m);
+    }
+}
+
+/// 0xFF for an inactive mask pixel, 0 for an active one: a select written as a bit mask so that
+/// the sweeps vectorise.
+#[inline]
+fn inactive(m: u8) -> u8 {
+    u8::from(m != 0).wrapping_sub(1)
+}
+
+/// One row of the upward sweep: the nearer of the downward distance and one more than below.
+#[inline]
+fn sweep_up(row: &mut [u8], below: &[u8]) {
+    for (g, &b) in row.iter_mut().zip(below) {
+        *g = (*g).min(b.saturating_add(1));
     }
 }
 
@@ -510,7 +557,7 @@ fn column_pass(mask: &[u8], w: usize, h: usize, cap: u8, col: &mut Vec<u8>) {
 /// where `seg` starts `window` pixels before the block. Stops once k² reaches the block's
 /// current maximum, since no farther candidate can then improve any pixel.
 #[inline]
-fn window_min(seg: &[i16], window: usize, out: &mut [i16; LANES]) {
+fn window_min(seg: &[i16], window: usize) -> [i16; LANES] {
     let mut acc = [0i16; LANES];
     acc.copy_from_slice(&seg[window..window + LANES]);
     for k in 1..=window {
@@ -524,7 +571,7 @@ fn window_min(seg: &[i16], window: usize, out: &mut [i16; LANES]) {
             *a = (*a).min(l.min(r) + kk);
         }
     }
-    *out = acc;
+    acc
 }
 
 /// Exact Euclidean distance (px) from each pixel of a `w`×`h` mask to its nearest nonzero pixel;
