@@ -9,6 +9,7 @@
 pub mod camera;
 pub mod error;
 pub mod event;
+pub mod field;
 pub mod image;
 pub mod rng;
 pub mod se3;

@@ -1,0 +1,1047 @@
+//! Truncated event distance field on a ¼ / ½ / 1 pyramid.
+//!
+//! The field at a pixel is f(D), D the exact Euclidean distance (in that level's pixels) to the
+//! nearest active pixel of that level, with
+//!
+//! * f(D) = D²/2 for D < 1 and D − ½ beyond (a Huber-shaped "rounded" distance). A plain D has a
+//!   V-shaped kink on the edge itself, so Gauss–Newton sees a gradient of constant magnitude that
+//!   flips sign across the edge and never settles; the quadratic bottom gives it a minimum with a
+//!   vanishing gradient. The two pieces meet with equal value and slope at D = 1.
+//! * truncation at τ (`tau_px`): f is capped at f(τ), so events farther than τ from a model point
+//!   cannot pull the solution (they are outliers, not evidence), and pixels of a region without any
+//!   active pixel carry f(τ) too.
+//!
+//! τ is in level pixels and is the same at every level. A level-ℓ pixel spans 2^ℓ full-resolution
+//! pixels, so the ½ and ¼ levels see a basin 2× and 4× wider in full-resolution pixels: the coarse
+//! levels absorb large inter-frame motions, the full-resolution level keeps outliers out and
+//! refines. Level ℓ's mask is the OR-pool of 2^ℓ×2^ℓ full-resolution pixels aligned to the
+//! absolute image grid (the grid of [`Roi::at_level`]), so that a pixel at level ℓ is active
+//! whenever any pixel it covers is.
+//!
+//! The build is two separable passes. Distances beyond τ are never needed, so the column pass
+//! counts in `u8` up to a cap just above τ, and the row pass only looks at candidates within τ,
+//! in `i16` lanes that SSE2 processes eight at a time; a block of pixels stops early once every
+//! pixel of it already has a candidate closer than the next offset. For τ too large for those
+//! integers, the build falls back to the exact Felzenszwalb–Huttenlocher transform, which also
+//! backs [`euclidean_distance`].
+
+use crate::error::{ensure, Error, Result};
+use crate::image::Roi;
+
+/// Default truncation radius τ, in level pixels.
+pub const DEFAULT_TAU_PX: f32 = 10.0;
+
+/// Most pyramid levels a field can have (full, ½, ¼).
+pub const MAX_LEVELS: u32 = 3;
+
+/// Largest τ whose window search fits `i16` lanes: cap² + window² must stay below 2^15.
+const MAX_WINDOW_PX: usize = 126;
+
+/// Row pixels processed together by the windowed row pass (two SSE2 vectors of `i16`).
+const LANES: usize = 16;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FieldParams {
+    /// Truncation radius τ in level pixels (finite, > 0).
+    pub tau_px: f32,
+    /// Number of pyramid levels, 1..=3 (1 = full resolution only).
+    pub levels: u32,
+}
+
+impl Default for FieldParams {
+    fn default() -> Self {
+        Self {
+            tau_px: DEFAULT_TAU_PX,
+            levels: MAX_LEVELS,
+        }
+    }
+}
+
+impl FieldParams {
+    pub fn validate(&self) -> Result<()> {
+        ensure(self.tau_px.is_finite() && self.tau_px > 0.0, || {
+            format!("tau_px must be finite and positive, got {}", self.tau_px)
+        })?;
+        ensure((1..=MAX_LEVELS).contains(&self.levels), || {
+            format!(
+                "levels must be within 1..={MAX_LEVELS}, got {}",
+                self.levels
+            )
+        })
+    }
+}
+
+/// The rounded, truncated distance f(min(D, τ)): D²/2 below 1 px, D − ½ from 1 px on.
+#[inline]
+pub fn rounded_distance(d_px: f32, tau_px: f32) -> f32 {
+    let d = d_px.min(tau_px);
+    if d < 1.0 {
+        0.5 * d * d
+    } else {
+        d - 0.5
+    }
+}
+
+/// One pyramid level of the field.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldLevel {
+    /// Pyramid level (0 = full resolution); one pixel here spans 2^level full-resolution pixels.
+    pub level: u32,
+    /// The region covered, in this level's grid.
+    pub roi: Roi,
+    /// Truncation radius τ in this level's pixels.
+    pub tau_px: f32,
+    /// f(D) per pixel, row-major over `roi` (level pixels).
+    pub value: Vec<f32>,
+    /// Central-difference gradient (d/du, d/dv) of `value` per pixel, in field units per level
+    /// pixel; empty unless built with gradients.
+    pub grad: Vec<[f32; 2]>,
+}
+
+impl FieldLevel {
+    fn empty(level: u32, tau_px: f32) -> Self {
+        Self {
+            level,
+            roi: Roi {
+                x0: 0,
+                y0: 0,
+                width: 0,
+                height: 0,
+            },
+            tau_px,
+            value: Vec::new(),
+            grad: Vec::new(),
+        }
+    }
+
+    /// f(τ), the value of every pixel farther than τ from any active pixel.
+    pub fn max_value(&self) -> f32 {
+        rounded_distance(self.tau_px, self.tau_px)
+    }
+
+    pub fn has_gradient(&self) -> bool {
+        !self.grad.is_empty()
+    }
+
+    /// Bilinear sample at level-grid pixel coordinates (absolute, pixel centres at integers).
+    /// Taps outside the roi read f(τ), so the field stays continuous across the roi border;
+    /// non-finite coordinates give f(τ).
+    #[inline]
+    pub fn sample(&self, u: f32, v: f32) -> f32 {
+        match self.cell(u, v) {
+            Cell::Interior { i, ax, ay } => {
+                let w = self.roi.width as usize;
+                let val = &self.value;
+                let top = val[i] + ax * (val[i + 1] - val[i]);
+                let bottom = val[i + w] + ax * (val[i + w + 1] - val[i + w]);
+                top + ay * (bottom - top)
+            }
+            Cell::Border { x, y, ax, ay } => {
+                let tap = |dx: i64, dy: i64| self.tap(x + dx, y + dy).0;
+                bilinear(tap(0, 0), tap(1, 0), tap(0, 1), tap(1, 1), ax, ay)
+            }
+            Cell::Outside => self.max_value(),
+        }
+    }
+
+    /// (value, d/du, d/dv): bilinear interpolation of the value and of the stored per-pixel
+    /// gradients (so the gradient is continuous, unlike the derivative of the bilinear value).
+    /// The gradient is 0 outside the roi or when the level was built without gradients.
+    #[inline]
+    pub fn sample_grad(&self, u: f32, v: f32) -> [f32; 3] {
+        if !self.has_gradient() {
+            return [self.sample(u, v), 0.0, 0.0];
+        }
+        match self.cell(u, v) {
+            Cell::Interior { i, ax, ay } => {
+                let w = self.roi.width as usize;
+                let (val, g) = (&self.value, &self.grad);
+                [
+                    bilinear(val[i], val[i + 1], val[i + w], val[i + w + 1], ax, ay),
+                    bilinear(g[i][0], g[i + 1][0], g[i + w][0], g[i + w + 1][0], ax, ay),
+                    bilinear(g[i][1], g[i + 1][1], g[i + w][1], g[i + w + 1][1], ax, ay),
+                ]
+            }
+            Cell::Border { x, y, ax, ay } => {
+                let t = [
+                    self.tap(x, y),
+                    self.tap(x + 1, y),
+                    self.tap(x, y + 1),
+                    self.tap(x + 1, y + 1),
+                ];
+                [
+                    bilinear(t[0].0, t[1].0, t[2].0, t[3].0, ax, ay),
+                    bilinear(t[0].1[0], t[1].1[0], t[2].1[0], t[3].1[0], ax, ay),
+                    bilinear(t[0].1[1], t[1].1[1], t[2].1[1], t[3].1[1], ax, ay),
+                ]
+            }
+            Cell::Outside => [self.max_value(), 0.0, 0.0],
+        }
+    }
+
+    /// Locates the bilinear cell of (u, v): fully inside (fast path), straddling the roi border,
+    /// or out of reach of every pixel.
+    #[inline]
+    fn cell(&self, u: f32, v: f32) -> Cell {
+        let x = u - self.roi.x0 as f32;
+        let y = v - self.roi.y0 as f32;
+        let (fx, fy) = (x.floor(), y.floor());
+        let (w, h) = (self.roi.width as f32, self.roi.height as f32);
+        // Written so that NaN fails every comparison and lands in `Outside`.
+        if fx >= 0.0 && fy >= 0.0 && fx < w - 1.0 && fy < h - 1.0 {
+            let i = fy as usize * self.roi.width as usize + fx as usize;
+            Cell::Interior {
+                i,
+                ax: x - fx,
+                ay: y - fy,
+            }
+        } else if fx >= -1.0 && fy >= -1.0 && fx < w && fy < h {
+            Cell::Border {
+                x: fx as i64,
+                y: fy as i64,
+                ax: x - fx,
+                ay: y - fy,
+            }
+        } else {
+            Cell::Outside
+        }
+    }
+
+    /// Value and gradient of roi-local pixel (x, y); f(τ) and no slope outside the roi.
+    fn tap(&self, x: i64, y: i64) -> (f32, [f32; 2]) {
+        let (w, h) = (i64::from(self.roi.width), i64::from(self.roi.height));
+        if x < 0 || y < 0 || x >= w || y >= h {
+            return (self.max_value(), [0.0, 0.0]);
+        }
+        let i = (y * w + x) as usize;
+        (
+            self.value[i],
+            self.grad.get(i).copied().unwrap_or([0.0, 0.0]),
+        )
+    }
+
+    /// Central differences of `value`, one-sided on the roi border.
+    fn compute_gradient(&mut self) {
+        let (w, h) = (self.roi.width as usize, self.roi.height as usize);
+        // Every entry is overwritten below, so only new ones need initialising.
+        self.grad.resize(w * h, [0.0, 0.0]);
+        if w == 0 || h == 0 {
+            return;
+        }
+        let val = &self.value;
+        for (y, grow) in self.grad.chunks_exact_mut(w).enumerate() {
+            let row = &val[y * w..(y + 1) * w];
+            let up = &val[y.saturating_sub(1) * w..][..w];
+            let down = &val[(y + 1).min(h - 1) * w..][..w];
+            // A one-pixel axis has no slope; on its border the difference is one-sided.
+            let sy = match h {
+                1 => 0.0,
+                _ if y == 0 || y == h - 1 => 1.0,
+                _ => 0.5,
+            };
+            for (g, (&u, &d)) in grow.iter_mut().zip(up.iter().zip(down)) {
+                g[1] = (d - u) * sy;
+            }
+            if w == 1 {
+                grow[0][0] = 0.0;
+                continue;
+            }
+            for (g, win) in grow[1..w - 1].iter_mut().zip(row.windows(3)) {
+                g[0] = (win[2] - win[0]) * 0.5;
+            }
+            grow[0][0] = row[1] - row[0];
+            grow[w - 1][0] = row[w - 1] - row[w - 2];
+        }
+    }
+}
+
+enum Cell {
+    Interior { i: usize, ax: f32, ay: f32 },
+    Border { x: i64, y: i64, ax: f32, ay: f32 },
+    Outside,
+}
+
+#[inline]
+fn bilinear(v00: f32, v10: f32, v01: f32, v11: f32, ax: f32, ay: f32) -> f32 {
+    let top = v00 + ax * (v10 - v00);
+    let bottom = v01 + ax * (v11 - v01);
+    top + ay * (bottom - top)
+}
+
+/// The field pyramid, rebuilt in place on every tracker update.
+#[derive(Debug, Clone)]
+pub struct DistanceField {
+    pub params: FieldParams,
+    /// One entry per configured level (`params.levels`); levels not built by the last
+    /// [`Self::build`] have an empty roi and sample as f(τ) everywhere.
+    pub levels: Vec<FieldLevel>,
+    built: u32,
+    /// Returned by [`Self::level`] when `levels` is empty.
+    absent: FieldLevel,
+    /// Pooled masks of levels 1 and 2, and one row of pooling work.
+    pooled: [Vec<u8>; 2],
+    pair_row: Vec<u8>,
+    scratch: Scratch,
+}
+
+/// Buffers reused across builds.
+#[derive(Debug, Clone, Default)]
+struct Scratch {
+    /// Capped vertical distances (column pass).
+    col: Vec<u8>,
+    /// One padded row of squared vertical distances.
+    row: Vec<i16>,
+    /// f as a function of the integer squared distance.
+    lut: Vec<f32>,
+    /// Squared vertical distances (exact fallback path).
+    d2: Vec<f64>,
+    fh: FhScratch,
+}
+
+impl DistanceField {
+    pub fn new(params: FieldParams) -> Result<Self> {
+        params.validate()?;
+        let levels = (0..params.levels)
+            .map(|l| FieldLevel::empty(l, params.tau_px))
+            .collect();
+        let absent = FieldLevel::empty(0, params.tau_px);
+        Ok(Self {
+            params,
+            levels,
+            built: 0,
+            absent,
+            pooled: Default::default(),
+            pair_row: Vec::new(),
+            scratch: Scratch::default(),
+        })
+    }
+
+    /// Number of levels the last build produced (0 before the first build).
+    pub fn n_built(&self) -> u32 {
+        self.built
+    }
+
+    /// Level `l`; an `l` beyond the configured levels gives the coarsest one. Levels the last
+    /// build skipped are empty and sample as f(τ).
+    pub fn level(&self, l: u32) -> &FieldLevel {
+        // `levels` is public, so it may have been emptied by hand; then everything samples f(τ).
+        self.levels
+            .get(l as usize)
+            .or(self.levels.last())
+            .unwrap_or(&self.absent)
+    }
+
+    /// Rebuild from a full-resolution mask of `roi` (row-major, `roi.width * roi.height`, nonzero
+    /// = active). Builds the first `n_levels` (1..=params.levels) levels; 1 gives full resolution
+    /// only, for the cheap search step. Gradients are computed only if `with_gradient`.
+    pub fn build(
+        &mut self,
+        mask: &[u8],
+        roi: Roi,
+        n_levels: u32,
+        with_gradient: bool,
+    ) -> Result<()> {
+        ensure((1..=self.params.levels).contains(&n_levels), || {
+            format!(
+                "n_levels must be within 1..={}, got {n_levels}",
+                self.params.levels
+            )
+        })?;
+        ensure(
+            roi.x0.checked_add(roi.width).is_some() && roi.y0.checked_add(roi.height).is_some(),
+            || format!("roi {roi:?} overflows the pixel grid"),
+        )?;
+        ensure(mask.len() == roi.area(), || {
+            format!(
+                "mask has {} pixels, roi {}x{} needs {}",
+                mask.len(),
+                roi.width,
+                roi.height,
+                roi.area()
+            )
+        })?;
+        self.params.validate()?;
+        let (tau, configured) = (self.params.tau_px, self.params.levels as usize);
+        self.absent.tau_px = tau;
+        let Self {
+            levels,
+            pooled,
+            pair_row,
+            scratch,
+            ..
+        } = self;
+        levels.resize_with(configured, || FieldLevel::empty(0, tau));
+        let [m1, m2] = pooled;
+        for l in 0..n_levels {
+            let lvl = &mut levels[l as usize];
+            lvl.level = l;
+            lvl.tau_px = tau;
+            lvl.roi = roi.at_level(l);
+            let level_mask: &[u8] = match l {
+                0 => mask,
+                1 => {
+                    or_pool(mask, roi, m1, pair_row);
+                    m1
+                }
+                _ => {
+                    or_pool(m1, roi.at_level(1), m2, pair_row);
+                    m2
+                }
+            };
+            let (w, h) = (lvl.roi.width as usize, lvl.roi.height as usize);
+            // Every entry is overwritten, so only new ones need initialising.
+            lvl.value.resize(w * h, 0.0);
+            truncated_field(level_mask, w, h, tau, &mut lvl.value, scratch);
+            if with_gradient {
+                lvl.compute_gradient();
+            } else {
+                lvl.grad.clear();
+            }
+        }
+        for (l, lvl) in levels.iter_mut().enumerate().skip(n_levels as usize) {
+            lvl.level = l as u32;
+            lvl.tau_px = tau;
+            lvl.roi = Roi {
+                x0: 0,
+                y0: 0,
+                width: 0,
+                height: 0,
+            };
+            lvl.value.clear();
+            lvl.grad.clear();
+        }
+        self.built = n_levels;
+        Ok(())
+    }
+}
+
+/// OR-pools 2×2 blocks of `src` (a mask over `roi`) into the mask of `roi.at_level(1)`, with
+/// blocks aligned to the absolute grid so the pyramid nests.
+fn or_pool(src: &[u8], roi: Roi, dst: &mut Vec<u8>, pair_row: &mut Vec<u8>) {
+    let half = roi.at_level(1);
+    let (sw, sh) = (roi.width as usize, roi.height as usize);
+    let (dw, dh) = (half.width as usize, half.height as usize);
+    // Every entry is overwritten below, so only new ones need initialising.
+    dst.resize(dw * dh, 0);
+    if dw == 0 {
+        return;
+    }
+    // Offset of the roi inside its first 2×2 block (0 or 1) in each axis.
+    let (ox, oy) = ((roi.x0 & 1) as usize, (roi.y0 & 1) as usize);
+    // The OR of two source rows, placed so that destination pixel X pools entries 2X and 2X+1;
+    // the (at most two) slots outside the roi stay 0.
+    pair_row.clear();
+    pair_row.resize(2 * dw, 0);
+    let source_row = |r: Option<usize>| r.filter(|&r| r < sh).map(|r| &src[r * sw..(r + 1) * sw]);
+    for (dy, drow) in dst.chunks_exact_mut(dw).enumerate() {
+        let pair = &mut pair_row[ox..ox + sw];
+        match (
+            source_row((2 * dy).checked_sub(oy)),
+            source_row(Some(2 * dy + 1 - oy)),
+        ) {
+            (Some(a), Some(b)) => {
+                for ((p, &a), &b) in pair.iter_mut().zip(a).zip(b) {
+                    *p = a | b;
+                }
+            }
+            (Some(a), None) | (None, Some(a)) => pair.copy_from_slice(a),
+            (None, None) => pair.fill(0),
+        }
+        for (d, two) in drow.iter_mut().zip(pair_row.chunks_exact(2)) {
+            *d = two[0] | two[1];
+        }
+    }
+}
+
+/// Truncated field values of a `w`×`h` mask into `out`.
+#[allow(clippy::too_many_arguments)]
+fn truncated_field(
+    mask: &[u8],
+    w: usize,
+    h: usize,
+    tau: f32,
+    out: &mut [f32],
+    scratch: &mut Scratch,
+) {
+    if w == 0 || h == 0 {
+        return;
+    }
+    let Scratch {
+        col,
+        row,
+        lut,
+        d2,
+        fh,
+    } = scratch;
+    let window = tau.floor() as usize;
+    if window > MAX_WINDOW_PX {
+        exact_squared_edt(mask, w, h, out, d2, fh);
+        for v in out.iter_mut() {
+            *v = rounded_distance(v.sqrt(), tau);
+        }
+        return;
+    }
+    // Any cap above τ is exact after truncation: a capped candidate is still farther than τ.
+    let cap = (window + 1) as u8;
+    column_pass(mask, w, h, cap, col);
+    // Pads of cap² keep the row window free of bounds tests; the right pad also rounds the
+    // row up to whole blocks of LANES.
+    let padded = window + w.div_ceil(LANES) * LANES + window;
+    row.clear();
+    row.resize(padded, i16::from(cap) * i16::from(cap));
+    // Squared distances are small integers (at most cap²), so f comes from a table.
+    let top = usize::from(cap) * usize::from(cap);
+    lut.clear();
+    lut.extend((0..=top).map(|d2| rounded_distance((d2 as f32).sqrt(), tau)));
+    for (g, orow) in col.chunks_exact(w).zip(out.chunks_exact_mut(w)) {
+        for (p, &gv) in row[window..window + w].iter_mut().zip(g) {
+            *p = i16::from(gv) * i16::from(gv);
+        }
+        for (x0, oblock) in (0..w).step_by(LANES).zip(orow.chunks_mut(LANES)) {
+            let d2 = window_min(&row[x0..x0 + 2 * window + LANES], window);
+            for (o, &d) in oblock.iter_mut().zip(&d2) {
+                *o = lut[(d as usize).min(top)];
+            }
+        }
+    }
+}
+
+/// Vertical distance to the nearest active pixel of the same column, capped at `cap`.
+fn column_pass(mask: &[u8], w: usize, h: usize, cap: u8, col: &mut Vec<u8>) {
+    // Every entry is overwritten below, so only new ones need initialising.
+    col.resize(w * h, 0);
+    // Row-wise sweeps so each step is a vectorisable operation over a whole row; the first row
+    // sees a virtual row of `cap` above it.
+    for (g, &m) in col[..w].iter_mut().zip(&mask[..w]) {
+        *g = cap & inactive(m);
+    }
+    for y in 1..h {
+        let (done, rest) = col.split_at_mut(y * w);
+        sweep_down(
+            &mut rest[..w],
+            &done[(y - 1) * w..],
+            &mask[y * w..(y + 1) * w],
+            cap,
+        );
+    }
+    for y in (0..h.saturating_sub(1)).rev() {
+        let (upper, lower) = col.split_at_mut((y + 1) * w);
+        sweep_up(&mut upper[y * w..], &lower[..w]);
+    }
+}
+
+/// One row of the downward sweep: 0 on active pixels, else one more than above, capped.
+#[inline]
+fn sweep_down(row: &mut [u8], above: &[u8], mask: &[u8], cap: u8) {
+    for ((g, &a), &m) in row.iter_mut().zip(above).zip(mask) {
+        *g = a.saturating_add(1).min(cap) & inactive(m);
+    }
+}
+
+/// 0xFF for an inactive mask pixel, 0 for an active one: a select written as a bit mask so that
+/// the sweeps vectorise.
+#[inline]
+fn inactive(m: u8) -> u8 {
+    u8::from(m != 0).wrapping_sub(1)
+}
+
+/// One row of the upward sweep: the nearer of the downward distance and one more than below.
+#[inline]
+fn sweep_up(row: &mut [u8], below: &[u8]) {
+    for (g, &b) in row.iter_mut().zip(below) {
+        *g = (*g).min(b.saturating_add(1));
+    }
+}
+
+/// Squared distances of LANES pixels: min over offsets k in −window..=window of row[x + k] + k²,
+/// where `seg` starts `window` pixels before the block. Stops once k² reaches the block's
+/// current maximum, since no farther candidate can then improve any pixel.
+#[inline]
+fn window_min(seg: &[i16], window: usize) -> [i16; LANES] {
+    let mut acc = [0i16; LANES];
+    acc.copy_from_slice(&seg[window..window + LANES]);
+    for k in 1..=window {
+        let kk = (k * k) as i16;
+        if acc.iter().fold(0, |m, &a| m.max(a)) <= kk {
+            break;
+        }
+        let left = &seg[window - k..window - k + LANES];
+        let right = &seg[window + k..window + k + LANES];
+        for ((a, &l), &r) in acc.iter_mut().zip(left).zip(right) {
+            *a = (*a).min(l.min(r) + kk);
+        }
+    }
+    acc
+}
+
+/// Exact Euclidean distance (px) from each pixel of a `w`×`h` mask to its nearest nonzero pixel;
+/// +∞ everywhere when there is none. Felzenszwalb–Huttenlocher, untruncated: the oracle the
+/// truncated build is checked against, and its fallback for very large τ.
+pub fn euclidean_distance(mask: &[u8], w: usize, h: usize, out: &mut [f32]) -> Result<()> {
+    let n = w
+        .checked_mul(h)
+        .ok_or_else(|| Error::InvalidArgument(format!("mask {w}x{h} is too large")))?;
+    ensure(mask.len() == n && out.len() == n, || {
+        format!(
+            "mask ({}) and output ({}) must both hold {w}x{h} = {n} pixels",
+            mask.len(),
+            out.len()
+        )
+    })?;
+    if n == 0 {
+        return Ok(());
+    }
+    exact_squared_edt(mask, w, h, out, &mut Vec::new(), &mut FhScratch::default());
+    for v in out.iter_mut() {
+        *v = v.sqrt();
+    }
+    Ok(())
+}
+
+#[derive(Debug, Clone, Default)]
+struct FhScratch {
+    /// Parabola vertices, their heights and left boundaries of the lower envelope.
+    v: Vec<usize>,
+    f: Vec<f64>,
+    z: Vec<f64>,
+}
+
+/// Squared EDT into `out`: vertical squared distances, then the 1-D lower envelope per row.
+/// f64 inside, since squared distances of large images exceed f32's exact integers.
+fn exact_squared_edt(
+    mask: &[u8],
+    w: usize,
+    h: usize,
+    out: &mut [f32],
+    d2: &mut Vec<f64>,
+    fh: &mut FhScratch,
+) {
+    d2.clear();
+    d2.resize(w * h, f64::INFINITY);
+    for x in 0..w {
+        let mut last: Option<usize> = None;
+        for y in 0..h {
+            if mask[y * w + x] != 0 {
+                last = Some(y);
+            }
+            if let Some(l) = last {
+                d2[y * w + x] = ((y - l) as f64).powi(2);
+            }
+        }
+        let mut next: Option<usize> = None;
+        for y in (0..h).rev() {
+            if mask[y * w + x] != 0 {
+                next = Some(y);
+            }
+            if let Some(nx) = next {
+                let o = &mut d2[y * w + x];
+                *o = o.min(((nx - y) as f64).powi(2));
+            }
+        }
+    }
+    for (frow, orow) in d2.chunks_exact(w).zip(out.chunks_exact_mut(w)) {
+        lower_envelope(frow, orow, fh);
+    }
+}
+
+/// 1-D squared distance transform: out[q] = min_p (q − p)² + f[p] (Felzenszwalb–Huttenlocher).
+fn lower_envelope(f: &[f64], out: &mut [f32], s: &mut FhScratch) {
+    s.v.clear();
+    s.f.clear();
+    s.z.clear();
+    for (p, &fp) in f.iter().enumerate() {
+        if !fp.is_finite() {
+            continue;
+        }
+        let pf = p as f64;
+        while let (Some(&q), Some(&fq), Some(&zq)) = (s.v.last(), s.f.last(), s.z.last()) {
+            let qf = q as f64;
+            // Where the parabola of p starts to lie below the one of q.
+            let cross = ((fp + pf * pf) - (fq + qf * qf)) / (2.0 * (pf - qf));
+            if cross > zq {
+                s.z.push(cross);
+                break;
+            }
+            s.v.pop();
+            s.f.pop();
+            s.z.pop();
+        }
+        if s.v.is_empty() {
+            s.z.push(f64::NEG_INFINITY);
+        }
+        s.v.push(p);
+        s.f.push(fp);
+    }
+    if s.v.is_empty() {
+        out.fill(f32::INFINITY);
+        return;
+    }
+    let mut k = 0;
+    for (q, o) in out.iter_mut().enumerate() {
+        let qf = q as f64;
+        while k + 1 < s.v.len() && s.z[k + 1] < qf {
+            k += 1;
+        }
+        let d = qf - s.v[k] as f64;
+        *o = (d * d + s.f[k]) as f32;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+
+    fn random_mask(w: usize, h: usize, density: f64, seed: u64) -> Vec<u8> {
+        let mut rng = Rng::new(seed);
+        (0..w * h)
+            .map(|_| u8::from(rng.uniform() < density))
+            .collect()
+    }
+
+    /// O(n²) reference distance to the nearest active pixel.
+    fn brute_distance(mask: &[u8], w: usize, h: usize) -> Vec<f32> {
+        let active: Vec<(f64, f64)> = (0..w * h)
+            .filter(|&i| mask[i] != 0)
+            .map(|i| ((i % w) as f64, (i / w) as f64))
+            .collect();
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f64, (i / w) as f64);
+                active
+                    .iter()
+                    .map(|&(ax, ay)| (ax - x).hypot(ay - y))
+                    .fold(f64::INFINITY, f64::min) as f32
+            })
+            .collect()
+    }
+
+    fn field(tau: f32, levels: u32) -> DistanceField {
+        DistanceField::new(FieldParams {
+            tau_px: tau,
+            levels,
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn rounded_distance_is_huber_shaped_and_capped() {
+        assert_eq!(rounded_distance(0.0, 10.0), 0.0);
+        assert_eq!(rounded_distance(0.5, 10.0), 0.125);
+        assert_eq!(rounded_distance(1.0, 10.0), 0.5);
+        assert_eq!(rounded_distance(3.0, 10.0), 2.5);
+        assert_eq!(rounded_distance(25.0, 10.0), 9.5);
+        assert_eq!(rounded_distance(0.8, 0.5), 0.125);
+        // Value and slope continuous where the pieces meet.
+        let e = 1e-3;
+        assert!((rounded_distance(1.0 - e, 10.0) - rounded_distance(1.0 + e, 10.0)).abs() < 2.1e-3);
+        let slope_below =
+            (rounded_distance(1.0 - e, 10.0) - rounded_distance(1.0 - 2.0 * e, 10.0)) / e;
+        assert!((slope_below - 1.0).abs() < 3e-3, "{slope_below}");
+    }
+
+    #[test]
+    fn exact_distance_of_a_single_pixel() {
+        let (w, h) = (7, 5);
+        let mut mask = vec![0u8; w * h];
+        mask[2 * w + 4] = 1;
+        let mut d = vec![0.0; w * h];
+        euclidean_distance(&mask, w, h, &mut d).unwrap();
+        assert_eq!(d[2 * w + 4], 0.0);
+        assert_eq!(d[2 * w], 4.0);
+        assert!((d[6] - 8f32.sqrt()).abs() < 1e-6);
+        assert!((d[4 * w] - 20f32.sqrt()).abs() < 1e-6);
+
+        let mut f = field(2.5, 1);
+        f.build(&mask, Roi::full(7, 5), 1, false).unwrap();
+        let v = &f.level(0).value;
+        assert_eq!(v[2 * w + 4], 0.0);
+        assert_eq!(v[2 * w + 5], 0.5);
+        assert!((v[w + 5] - (2f32.sqrt() - 0.5)).abs() < 1e-6);
+        assert_eq!(v[2 * w + 6], 1.5);
+        assert_eq!(v[2 * w], 2.0, "4 px away is capped at f(2.5)");
+        assert_eq!(f.level(0).max_value(), 2.0);
+    }
+
+    #[test]
+    fn exact_distance_matches_brute_force() {
+        for (i, &(w, h, density)) in [
+            (1, 1, 1.0),
+            (1, 9, 0.2),
+            (13, 1, 0.2),
+            (31, 17, 0.01),
+            (40, 33, 0.3),
+            (64, 5, 0.05),
+        ]
+        .iter()
+        .enumerate()
+        {
+            let mask = random_mask(w, h, density, i as u64);
+            let mut d = vec![0.0; w * h];
+            euclidean_distance(&mask, w, h, &mut d).unwrap();
+            for (a, b) in d.iter().zip(brute_distance(&mask, w, h)) {
+                assert!(a == &b || (a - b).abs() < 1e-4, "{w}x{h}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn truncated_build_equals_rounded_exact_distance() {
+        let cases = [
+            (97, 61, 0.02, 10.0),
+            (50, 40, 0.001, 10.0),
+            (33, 29, 0.1, 3.7),
+            (17, 70, 0.05, 1.0),
+            (20, 20, 0.05, 0.4),
+            (45, 38, 0.003, 150.0),
+            (1, 30, 0.1, 10.0),
+            (30, 1, 0.1, 10.0),
+        ];
+        for (i, &(w, h, density, tau)) in cases.iter().enumerate() {
+            let mask = random_mask(w, h, density, 100 + i as u64);
+            let mut d = vec![0.0; w * h];
+            euclidean_distance(&mask, w, h, &mut d).unwrap();
+            let mut f = field(tau, 1);
+            f.build(&mask, Roi::full(w as u32, h as u32), 1, false)
+                .unwrap();
+            for (k, (&v, &dk)) in f.level(0).value.iter().zip(&d).enumerate() {
+                let want = rounded_distance(dk, tau);
+                assert!(
+                    (v - want).abs() < 1e-5,
+                    "{w}x{h} tau {tau} at {k}: {v} vs {want} (D {dk})"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn empty_mask_is_flat_at_the_cap() {
+        let mut d = vec![0.0; 12];
+        euclidean_distance(&[0; 12], 4, 3, &mut d).unwrap();
+        assert!(d.iter().all(|v| v.is_infinite()));
+        let mut f = field(6.0, 3);
+        f.build(
+            &[0; 12 * 9],
+            Roi {
+                x0: 5,
+                y0: 3,
+                width: 12,
+                height: 9,
+            },
+            3,
+            true,
+        )
+        .unwrap();
+        for lvl in &f.levels {
+            assert!(lvl.value.iter().all(|&v| v == 5.5));
+            assert!(lvl.grad.iter().all(|g| g == &[0.0, 0.0]));
+        }
+    }
+
+    #[test]
+    fn pyramid_or_pools_on_the_absolute_grid() {
+        let roi = Roi {
+            x0: 3,
+            y0: 1,
+            width: 21,
+            height: 14,
+        };
+        let (w, h) = (roi.width as usize, roi.height as usize);
+        let mask = random_mask(w, h, 0.01, 7);
+        let mut f = field(4.0, 3);
+        f.build(&mask, roi, 3, false).unwrap();
+        assert_eq!(f.n_built(), 3);
+        for l in 0..3u32 {
+            let lvl = f.level(l);
+            let lr = roi.at_level(l);
+            assert_eq!((lvl.level, lvl.roi), (l, lr));
+            let (lw, lh) = (lr.width as usize, lr.height as usize);
+            let mut pooled = vec![0u8; lw * lh];
+            for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m != 0) {
+                let (gx, gy) = (roi.x0 as usize + i % w, roi.y0 as usize + i / w);
+                pooled[((gy >> l) - lr.y0 as usize) * lw + (gx >> l) - lr.x0 as usize] = 1;
+            }
+            let want = brute_distance(&pooled, lw, lh);
+            for (&v, &d) in lvl.value.iter().zip(&want) {
+                assert!((v - rounded_distance(d, 4.0)).abs() < 1e-5, "level {l}");
+            }
+        }
+        // One active pixel at absolute (8, 5) is level-1 pixel (4, 2) and level-2 pixel (2, 1).
+        let mut one = vec![0u8; w * h];
+        one[(5 - 1) * w + (8 - 3)] = 1;
+        f.build(&one, roi, 3, false).unwrap();
+        assert_eq!(f.level(1).sample(4.0, 2.0), 0.0);
+        assert_eq!(f.level(1).sample(5.0, 2.0), 0.5);
+        assert_eq!(f.level(2).sample(2.0, 1.0), 0.0);
+        assert_eq!(f.level(2).sample(1.0, 1.0), 0.5);
+    }
+
+    #[test]
+    fn sample_interpolates_and_caps_outside() {
+        let roi = Roi {
+            x0: 10,
+            y0: 20,
+            width: 30,
+            height: 25,
+        };
+        let mut mask = vec![0u8; roi.area()];
+        for y in 0..25 {
+            mask[y * 30 + 12] = 1; // vertical line at absolute u = 22
+        }
+        let mut f = field(10.0, 1);
+        f.build(&mask, roi, 1, true).unwrap();
+        let l = f.level(0);
+        assert_eq!(l.sample(22.0, 30.0), 0.0);
+        assert_eq!(l.sample(25.0, 30.0), 2.5);
+        assert!((l.sample(25.25, 30.7) - 2.75).abs() < 1e-6);
+        assert!((l.sample(22.5, 31.0) - 0.25).abs() < 1e-6);
+        // On the linear flank of the line the gradient is exactly the finite-difference slope.
+        let [val, gu, gv] = l.sample_grad(25.25, 30.7);
+        let fd = (l.sample(25.3, 30.7) - l.sample(25.2, 30.7)) / 0.1;
+        assert!(
+            (val - 2.75).abs() < 1e-6
+                && (gu - 1.0).abs() < 1e-6
+                && gv == 0.0
+                && (fd - 1.0).abs() < 1e-4
+        );
+        let [_, gu, _] = l.sample_grad(19.5, 30.0);
+        assert!(
+            (gu + 1.0).abs() < 1e-6,
+            "left flank slopes down towards the line: {gu}"
+        );
+        assert_eq!(l.sample(0.0, 30.0), 9.5);
+        assert_eq!(l.sample(f32::NAN, 30.0), 9.5);
+        assert_eq!(l.sample(25.0, f32::INFINITY), 9.5);
+        // Half a pixel past the last row blends the edge row with the cap.
+        assert!((l.sample(25.0, 44.5) - 0.5 * (2.5 + 9.5)).abs() < 1e-6);
+        assert_eq!(l.sample_grad(f32::NAN, 0.0), [9.5, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn sample_grad_matches_finite_differences() {
+        let roi = Roi::full(60, 50);
+        let mut mask = vec![0u8; roi.area()];
+        mask[20 * 60 + 25] = 1;
+        mask[40 * 60 + 30] = 1;
+        let mut f = field(10.0, 1);
+        f.build(&mask, roi, 1, true).unwrap();
+        let l = f.level(0);
+        // Within 3..8 px of one point (off the apex, inside τ) the field is a cone of unit slope.
+        let mut rng = Rng::new(3);
+        for _ in 0..300 {
+            let (r, a) = (
+                3.0 + 5.0 * rng.uniform() as f32,
+                std::f32::consts::TAU * rng.uniform() as f32,
+            );
+            let (u, v) = (25.0 + r * a.cos(), 20.0 + r * a.sin());
+            let [val, gu, gv] = l.sample_grad(u, v);
+            assert_eq!(val, l.sample(u, v));
+            let e = 0.05;
+            let fu = (l.sample(u + e, v) - l.sample(u - e, v)) / (2.0 * e);
+            let fv = (l.sample(u, v + e) - l.sample(u, v - e)) / (2.0 * e);
+            // Interpolated central differences vs the slope of the bilinear interpolant: they differ
+            // by the cone's curvature (1/r) over one pixel, not by more.
+            assert!(
+                (gu - fu).abs() < 0.25 && (gv - fv).abs() < 0.25,
+                "({u}, {v}): {gu},{gv} vs {fu},{fv}"
+            );
+            assert!(
+                (gu - a.cos()).abs() < 0.1 && (gv - a.sin()).abs() < 0.1,
+                "({u}, {v}): {gu},{gv} at angle {a}"
+            );
+        }
+        // At pixel centres the stored gradient is exactly the central difference of the values.
+        let v = &l.value;
+        let i = 33 * 60 + 27;
+        assert_eq!(
+            l.sample_grad(27.0, 33.0),
+            [
+                v[i],
+                (v[i + 1] - v[i - 1]) / 2.0,
+                (v[i + 60] - v[i - 60]) / 2.0
+            ]
+        );
+        // Beyond τ the field is flat.
+        assert_eq!(l.sample_grad(55.0, 5.0), [9.5, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn partial_builds_and_missing_gradients() {
+        let roi = Roi::full(40, 30);
+        let mask = random_mask(40, 30, 0.05, 11);
+        let mut f = field(5.0, 3);
+        f.build(&mask, roi, 3, true).unwrap();
+        assert!(f.level(2).has_gradient());
+        f.build(&mask, roi, 1, false).unwrap();
+        assert_eq!(f.n_built(), 1);
+        assert!(!f.level(0).has_gradient());
+        assert_eq!(f.level(1).roi.area(), 0);
+        assert_eq!(f.level(2).sample(3.0, 3.0), 4.5);
+        let [val, gu, gv] = f.level(0).sample_grad(10.3, 7.6);
+        assert_eq!((val, gu, gv), (f.level(0).sample(10.3, 7.6), 0.0, 0.0));
+        assert_eq!(f.level(9).level, 2);
+
+        // Rebuilding into reused buffers gives what a fresh field gives.
+        let small = Roi {
+            x0: 1,
+            y0: 2,
+            width: 9,
+            height: 7,
+        };
+        let small_mask = random_mask(9, 7, 0.1, 12);
+        f.build(&small_mask, small, 3, true).unwrap();
+        let mut fresh = field(5.0, 3);
+        fresh.build(&small_mask, small, 3, true).unwrap();
+        assert_eq!(f.levels, fresh.levels);
+    }
+
+    #[test]
+    fn bad_parameters_are_errors() {
+        for tau in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            assert!(
+                DistanceField::new(FieldParams {
+                    tau_px: tau,
+                    levels: 3
+                })
+                .is_err(),
+                "tau {tau}"
+            );
+        }
+        for levels in [0, 4] {
+            assert!(DistanceField::new(FieldParams {
+                tau_px: 10.0,
+                levels
+            })
+            .is_err());
+        }
+        let mut f = DistanceField::new(FieldParams::default()).unwrap();
+        let roi = Roi::full(4, 4);
+        assert!(f.build(&[0; 15], roi, 1, false).is_err());
+        assert!(f.build(&[0; 16], roi, 0, false).is_err());
+        assert!(f.build(&[0; 16], roi, 4, false).is_err());
+        assert!(f
+            .build(
+                &[0; 16],
+                Roi {
+                    x0: u32::MAX,
+                    y0: 0,
+                    width: 4,
+                    height: 4
+                },
+                1,
+                false
+            )
+            .is_err());
+        f.params.tau_px = f32::NAN;
+        assert!(f.build(&[0; 16], roi, 1, false).is_err());
+        assert!(euclidean_distance(&[0; 15], 4, 4, &mut [0.0; 16]).is_err());
+        assert!(euclidean_distance(&[0; 16], 4, 4, &mut [0.0; 15]).is_err());
+        assert!(euclidean_distance(&[], usize::MAX, 2, &mut []).is_err());
+        // A hand-emptied level list still answers, with the cap.
+        f.params.tau_px = 10.0;
+        f.levels.clear();
+        assert_eq!(f.level(0).sample(1.0, 1.0), 9.5);
+        f.build(&[1; 16], roi, 3, false).unwrap();
+        assert_eq!(f.levels.len(), 3);
+    }
+}
