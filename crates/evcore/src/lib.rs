@@ -10,6 +10,9 @@ pub mod camera;
 pub mod error;
 pub mod event;
 pub mod image;
+pub mod mesh;
+pub mod pointset;
+pub mod render;
 pub mod rng;
 pub mod se3;
 
