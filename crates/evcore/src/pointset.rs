@@ -15,7 +15,6 @@ use crate::render::{render, RenderOptions, Rendered};
 use crate::rng::Rng;
 use crate::se3::Pose;
 use nalgebra::Point3;
-use std::collections::HashMap;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PointSetParams {
@@ -103,7 +102,7 @@ fn edge_pixels(r: &Rendered, params: &PointSetParams) -> Vec<(u32, u32, EdgeKind
             if kind.is_none() && smooth == 4 {
                 let gx = 0.5 * (r.intensity[i + 1] - r.intensity[i - 1]);
                 let gy = 0.5 * (r.intensity[i + w] - r.intensity[i - w]);
-                if gx.hypot(gy) > params.texture_grad {
+                if gx * gx + gy * gy > params.texture_grad * params.texture_grad {
                     kind = Some(EdgeKind::Texture);
                 }
             }
@@ -127,33 +126,44 @@ fn thin(pixels: &[(u32, u32, EdgeKind)], max: usize, seed: u64) -> Vec<usize> {
     if order.len() <= max {
         return order;
     }
+    let x_max = pixels.iter().map(|p| p.0).max().unwrap_or(0) as usize;
+    let y_max = pixels.iter().map(|p| p.1).max().unwrap_or(0) as usize;
     // Edges are curves about one pixel wide, so n pixels spread over max points are n/max apart.
     let mut r = pixels.len() as f64 / max as f64;
+    let mut grid = Vec::new();
     while r >= 1.0 {
-        let mut grid: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+        // Cells of side r/√2 hold at most one kept pixel, and a pixel closer than r to a kept
+        // one lies within two cells of it.
+        let cell = r / std::f64::consts::SQRT_2;
+        let (gw, gh) = (
+            (x_max as f64 / cell) as usize + 1,
+            (y_max as f64 / cell) as usize + 1,
+        );
+        grid.clear();
+        grid.resize(gw * gh, usize::MAX);
         let mut kept = Vec::with_capacity(max);
         for &k in &order {
             let (x, y) = (f64::from(pixels[k].0), f64::from(pixels[k].1));
-            let cell = ((x / r).floor() as i64, (y / r).floor() as i64);
-            let near = (-1..=1)
-                .flat_map(|dy| (-1..=1).map(move |dx| (cell.0 + dx, cell.1 + dy)))
-                .any(|c| {
-                    grid.get(&c).is_some_and(|ks| {
-                        ks.iter().any(|&j| {
-                            let (ox, oy) = (f64::from(pixels[j].0), f64::from(pixels[j].1));
-                            (ox - x).hypot(oy - y) < r
-                        })
-                    })
+            let (cx, cy) = ((x / cell) as usize, (y / cell) as usize);
+            let near = (cy.saturating_sub(2)..(cy + 3).min(gh))
+                .flat_map(|gy| (cx.saturating_sub(2)..(cx + 3).min(gw)).map(move |gx| gy * gw + gx))
+                .any(|g| {
+                    let j = grid[g];
+                    j != usize::MAX
+                        && (f64::from(pixels[j].0) - x).powi(2)
+                            + (f64::from(pixels[j].1) - y).powi(2)
+                            < r * r
                 });
             if !near {
-                grid.entry(cell).or_default().push(k);
+                grid[cy * gw + cx] = k;
                 kept.push(k);
                 if kept.len() == max {
                     return kept;
                 }
             }
         }
-        r *= 0.8;
+        // The kept count grows like 1/r along curves; aim a little past `max` so the next pass fills.
+        r *= (0.95 * kept.len() as f64 / max as f64).clamp(0.5, 0.95);
     }
     order.truncate(max);
     order
@@ -239,7 +249,7 @@ mod tests {
     use super::*;
     use crate::mesh::{test_cube, Shading, Texture};
     use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
-    use std::collections::HashSet;
+    use std::collections::{HashMap, HashSet};
 
     fn cam() -> Camera {
         Camera::new(

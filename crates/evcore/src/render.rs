@@ -204,7 +204,6 @@ pub struct Renderer {
     verts_c: Vec<Vector3<f64>>,
     tris: Vec<Tri>,
     bins: Vec<Vec<u32>>,
-    tri_id: Vec<u32>,
     out: Rendered,
 }
 
@@ -336,7 +335,6 @@ impl Renderer {
         self.out.depth_m.resize(n, 0.0);
         self.out.intensity.resize(n, 0.0);
         self.out.normal_c.resize(n, [0.0; 3]);
-        self.tri_id.resize(n, NO_TRIANGLE);
         let band_len = BAND_ROWS * w;
         let (tris, bins) = (&self.tris, &self.bins);
         let Rendered {
@@ -347,11 +345,14 @@ impl Renderer {
         } = &mut self.out;
         depth_m
             .par_chunks_mut(band_len)
-            .zip(self.tri_id.par_chunks_mut(band_len))
             .zip(intensity.par_chunks_mut(band_len))
             .zip(normal_c.par_chunks_mut(band_len))
             .enumerate()
-            .for_each(|(band, (((depth, ids), inten), normals))| {
+            // Triangle ids live in a per-worker scratch band that stays in cache; a full-frame
+            // id buffer would add megabytes of memory traffic per frame.
+            .for_each_init(Vec::new, |scratch, (band, ((depth, inten), normals))| {
+                scratch.resize(depth.len(), NO_TRIANGLE);
+                let ids = &mut scratch[..depth.len()];
                 let y_first = bounds[2] + (band * BAND_ROWS) as i64;
                 let rows = depth.len() / w;
                 let band_bounds = Band {
@@ -412,7 +413,9 @@ fn rasterize_band(tris: &[Tri], bin: &[u32], band: &Band, inv_z: &mut [f32], ids
     }
 }
 
-/// Shading pass over the visible pixels; turns `depth` from 1/z into metres.
+/// Shading pass over the visible pixels; turns `depth` from 1/z into metres. Works on runs of
+/// pixels won by the same triangle, so the shading model is chosen once per run and the
+/// barycentrics are stepped along the row instead of re-evaluated.
 #[allow(clippy::too_many_arguments)]
 fn shade_band(
     mesh: &Mesh,
@@ -425,45 +428,84 @@ fn shade_band(
     intensity: &mut [f32],
     normals: &mut [[f32; 3]],
 ) {
+    let w = band.width;
     for r in 0..band.rows {
         let y = (band.y0 + r as i64) as f64;
-        let ry = (y - cam.cy) / cam.fy;
-        for c in 0..band.width {
-            let i = r * band.width + c;
-            let id = ids[i];
+        let mut c = 0;
+        while c < w {
+            let row = r * w;
+            let id = ids[row + c];
+            let end = ids[row + c..row + w]
+                .iter()
+                .position(|&k| k != id)
+                .map_or(w, |n| c + n);
+            let run = row + c..row + end;
             if id == NO_TRIANGLE {
-                depth[i] = f32::INFINITY;
-                intensity[i] = opts.background;
-                normals[i] = [0.0; 3];
-                continue;
+                depth[run.clone()].fill(f32::INFINITY);
+                intensity[run.clone()].fill(opts.background);
+                normals[run].fill([0.0; 3]);
+            } else {
+                let t = &tris[id as usize];
+                let x0 = (band.x0 + c as i64) as f64;
+                let out = Run {
+                    depth: &mut depth[run.clone()],
+                    intensity: &mut intensity[run.clone()],
+                };
+                match &mesh.shading {
+                    Shading::Constant(a) => shade_run(cam, opts, t, x0, y, out, |_| *a),
+                    Shading::VertexIntensity(_) => shade_run(cam, opts, t, x0, y, out, |a| a[0]),
+                    Shading::Textured { texture, .. } => {
+                        shade_run(cam, opts, t, x0, y, out, |uv| texture.sample(uv[0], uv[1]))
+                    }
+                }
+                normals[run].fill(t.normal_c);
             }
-            let t = &tris[id as usize];
-            let x = (band.x0 + c as i64) as f64;
-            let l = t.barycentric(x, y);
-            let iz = t.inv_z_at(&l);
-            // Perspective-correct weights: λᵢ/zᵢ normalised by their sum 1/z.
-            let wgt = [
-                l[0] * t.inv_z[0] / iz,
-                l[1] * t.inv_z[1] / iz,
-                l[2] * t.inv_z[2] / iz,
-            ]
-            .map(|v| v as f32);
-            let lerp =
-                |k: usize| wgt[0] * t.attr[0][k] + wgt[1] * t.attr[1][k] + wgt[2] * t.attr[2][k];
-            let albedo = match &mesh.shading {
-                Shading::Constant(a) => *a,
-                Shading::VertexIntensity(_) => lerp(0),
-                Shading::Textured { texture, .. } => texture.sample(lerp(0), lerp(1)),
-            };
-            let ray = Vector3::new((x - cam.cx) / cam.fx, ry, 1.0);
-            let n = t.normal_c;
-            let cos = ((f64::from(n[0]) * ray.x + f64::from(n[1]) * ray.y + f64::from(n[2]))
-                / ray.norm())
-            .abs() as f32;
-            depth[i] = (1.0 / iz) as f32;
-            intensity[i] = albedo * (opts.ambient + opts.diffuse * cos);
-            normals[i] = n;
+            c = end;
         }
+    }
+}
+
+/// Output slices of one run of pixels.
+struct Run<'a> {
+    depth: &'a mut [f32],
+    intensity: &'a mut [f32],
+}
+
+/// Shade a run of pixels of triangle `t` starting at pixel (x0, y); `albedo` maps the
+/// perspective-correct vertex attribute to an albedo.
+#[inline(always)]
+fn shade_run(
+    cam: &Camera,
+    opts: &RenderOptions,
+    t: &Tri,
+    x0: f64,
+    y: f64,
+    out: Run<'_>,
+    albedo: impl Fn([f32; 2]) -> f32,
+) {
+    let mut l = t.barycentric(x0, y);
+    let n = t.normal_c.map(f64::from);
+    let inv_fx = 1.0 / cam.fx;
+    let ry = (y - cam.cy) / cam.fy;
+    // n · ray is affine along the row; |ray|² is quadratic, so it is evaluated per pixel.
+    let mut rx = (x0 - cam.cx) * inv_fx;
+    let ry2_1 = ry * ry + 1.0;
+    let n_dot_base = n[1] * ry + n[2];
+    for (d, i) in out.depth.iter_mut().zip(out.intensity.iter_mut()) {
+        let pz = [l[0] * t.inv_z[0], l[1] * t.inv_z[1], l[2] * t.inv_z[2]];
+        let z = 1.0 / (pz[0] + pz[1] + pz[2]);
+        // Perspective-correct weights: λᵢ/zᵢ normalised by their sum 1/z.
+        let wgt = pz.map(|v| (v * z) as f32);
+        let attr = std::array::from_fn(|k| {
+            wgt[0] * t.attr[0][k] + wgt[1] * t.attr[1][k] + wgt[2] * t.attr[2][k]
+        });
+        let cos = ((n[0] * rx + n_dot_base) / (rx * rx + ry2_1).sqrt()).abs() as f32;
+        *d = z as f32;
+        *i = albedo(attr) * (opts.ambient + opts.diffuse * cos);
+        for k in 0..3 {
+            l[k] += t.a[k];
+        }
+        rx += inv_fx;
     }
 }
 
