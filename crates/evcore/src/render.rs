@@ -502,8 +502,8 @@ fn shade_run(
         let cos = ((n[0] * rx + n_dot_base) / (rx * rx + ry2_1).sqrt()).abs() as f32;
         *d = z as f32;
         *i = albedo(attr) * (opts.ambient + opts.diffuse * cos);
-        for k in 0..3 {
-            l[k] += t.a[k];
+        for (lk, ak) in l.iter_mut().zip(&t.a) {
+            *lk += ak;
         }
         rx += inv_fx;
     }
