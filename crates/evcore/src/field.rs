@@ -179,6 +179,31 @@ impl FieldLevel {
         }
     }
 
+    /// (value, d/du, d/dv) of the bilinear interpolant itself: its slope is constant across each
+    /// cell, so on the V of an unsigned distance a Gauss–Newton step lands on the edge exactly,
+    /// where the smoothed central-difference gradient of [`Self::sample_grad`] vanishes at the edge
+    /// and makes the step overshoot. Needs no stored gradient.
+    #[inline]
+    pub fn sample_slope(&self, u: f32, v: f32) -> [f32; 3] {
+        let (v00, v10, v01, v11, ax, ay) = match self.cell(u, v) {
+            Cell::Interior { i, ax, ay } => {
+                let w = self.roi.width as usize;
+                let val = &self.value;
+                (val[i], val[i + 1], val[i + w], val[i + w + 1], ax, ay)
+            }
+            Cell::Border { x, y, ax, ay } => {
+                let tap = |dx: i64, dy: i64| self.tap(x + dx, y + dy).0;
+                (tap(0, 0), tap(1, 0), tap(0, 1), tap(1, 1), ax, ay)
+            }
+            Cell::Outside => return [self.max_value(), 0.0, 0.0],
+        };
+        [
+            bilinear(v00, v10, v01, v11, ax, ay),
+            (v10 - v00) + ay * ((v11 - v01) - (v10 - v00)),
+            (v01 - v00) + ax * ((v11 - v10) - (v01 - v00)),
+        ]
+    }
+
     /// Locates the bilinear cell of (u, v): fully inside (fast path), straddling the roi border,
     /// or out of reach of every pixel.
     #[inline]

@@ -17,6 +17,7 @@ pub mod render;
 pub mod rng;
 pub mod se3;
 pub mod solve;
+pub mod tracker;
 pub mod surface;
 
 pub use camera::{Camera, UndistortLut};

@@ -7,8 +7,8 @@
 //! so neither side ever waits on a lock held by the other.
 //!
 //! One *update* = one published pose = one LM or one search step on a field rebuilt from the
-//! current active set. LM steps build the full pyramid with gradients; search steps only need the
-//! full-resolution values, which is most of why they are cheap.
+//! current active set. LM steps build the full pyramid; search steps only need the full-resolution
+//! level, which is most of why they are cheap.
 
 use crate::camera::{Camera, UndistortLut};
 use crate::error::{ensure, Error, Result};
@@ -254,7 +254,7 @@ impl TrackerCore {
         let n_levels = if kind == StepKind::Lm { self.config.field.levels } else { 1 };
         self.mask.resize(roi.area(), 0);
         self.surface.fill_mask(roi, &mut self.mask);
-        let built = self.field.build(&self.mask, roi, n_levels, kind == StepKind::Lm);
+        let built = self.field.build(&self.mask, roi, n_levels, false);
         let new_pose = match (built, kind) {
             (Err(_), _) => pose,
             (Ok(()), StepKind::Lm) => {

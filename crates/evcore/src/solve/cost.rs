@@ -169,6 +169,22 @@ pub fn cost_stats(
     }
 }
 
+/// The event distance field is the cost surface; LM reads the slope of its bilinear interpolant
+/// (see [`crate::field::FieldLevel::sample_slope`]).
+impl CostMap for crate::field::FieldLevel {
+    #[inline]
+    fn sample(&self, u: f32, v: f32) -> f32 {
+        crate::field::FieldLevel::sample(self, u, v)
+    }
+    #[inline]
+    fn sample_grad(&self, u: f32, v: f32) -> [f32; 3] {
+        self.sample_slope(u, v)
+    }
+    fn max_value(&self) -> f32 {
+        crate::field::FieldLevel::max_value(self)
+    }
+}
+
 #[cfg(test)]
 pub(crate) mod testing {
     //! An analytic cost map for solver tests: the truncated distance to a set of 2D segments.
