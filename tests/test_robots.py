@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from evservo import geometry, trajectories
+from evservo.control import Pbvs
 from evservo.robots import PANDA, UR5E, Arm, PoseFollower, shift_twist, solve_joint_velocities
 from evservo.robots.ik import joint_velocity_bounds
 from evservo.sim.scene import DualArmScene
@@ -145,3 +146,37 @@ def test_qp_is_exact_when_feasible_and_brakes_before_position_limit():
     lb, ub = joint_velocity_bounds(q, qd, 0.002, PANDA)
     assert ub[3] == pytest.approx(np.sqrt(2 * 12.5 * 0.001))
     assert lb[3] == ub[3]  # braking harder than the acceleration limit allows: safety wins
+
+
+def servo_run(scene, feedforward: bool, duration_s: float = 4.0) -> np.ndarray:
+    """Pbvs on the Panda against the UR5e moving the target at 0.4 m/s, poses from a 100 Hz ground-truth
+    oracle, control at 500 Hz; returns the translation error of T_c_o (m) after the first second."""
+    T_c_o_des = scene.reset_to_start(0.6)
+    T_w_o0 = scene.T_w_o()
+    traj = trajectories.make_trajectory("trans", speed_mps=0.4)
+    follower = PoseFollower(
+        scene.ur, lambda t: trajectories.apply(traj(np.array([t])), T_w_o0)[0], T_e_x=scene.config.T_e_o
+    )
+    ctrl = Pbvs(feedforward=feedforward, period_s=0.002)
+    t0 = scene.t_s
+    ctrl.start(scene.T_w_c(), scene.T_c_o(), t_s=0.0)
+    errs = []
+    for k in range(1, round(duration_s / 0.002) + 1):
+        t = scene.t_s - t0
+        follower.command(t)
+        T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
+        v_c = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
+        cmd = ctrl.update(t, T_w_c, v_c, scene.T_c_o() if k % 5 == 0 else None)
+        assert cmd.state == "ok"
+        scene.panda.command_twist(shift_twist(cmd.v_c_w, T_w_c[:3, 3], T_w_e[:3, 3]), 0.002)
+        scene.step(2)
+        if t > 1.0:
+            errs.append(geometry.translation_error_m(scene.T_c_o(), T_c_o_des))
+    return np.array(errs)
+
+
+def test_closed_loop_servo_follows_moving_target(scene):
+    rms = {ff: float(np.sqrt(np.mean(servo_run(scene, ff) ** 2))) for ff in (False, True)}
+    # Eq. 6 alone lags a ramp by 2 v / √k (0.18 m at 0.4 m/s); the sinusoid's RMS stays below that.
+    assert 0.05 < rms[False] < 0.12, rms
+    assert rms[True] < 0.65 * rms[False], rms
