@@ -1,0 +1,79 @@
+"""Resolved-rate inverse kinematics as a small bound-constrained QP (qpsolvers + DAQP).
+
+For a requested end-effector twist ``v`` (world frame, m/s and rad/s) and the 6×n Jacobian ``J`` of the
+same frame (``v = J q̇``), find the joint velocities ``q̇`` that minimise
+
+    ‖J q̇ − v‖² + λ‖q̇‖² + μ‖q̇ − g (q_rest − q)‖²
+
+subject to, per joint, the velocity limit, the acceleration limit over the command period
+(``|q̇ − q̇_now| ≤ q̈_max·dt``) and a position limit expressed as a braking bound (the joint can still
+stop at its acceleration limit before reaching the end of its range). λ damps singularities; the small
+posture term (μ, towards ``q_rest``) uses the redundancy of a 7-joint arm and keeps the joints away from
+their limits. All constraints are boxes, which DAQP handles natively.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import qpsolvers
+
+from evservo.robots.limits import JointLimits
+
+
+def joint_velocity_bounds(
+    q: np.ndarray, qd: np.ndarray, dt_s: float, limits: JointLimits
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds on the next joint velocities (rad/s).
+
+    Where the acceleration window cannot reach the band allowed by the position and velocity limits
+    (only after a disturbance, e.g. a joint set by hand), safety wins: the bound is the nearest edge of
+    that band, even if it takes more than the acceleration limit to get there.
+    """
+    d_hi = np.maximum(limits.q_max - q, 0.0)
+    d_lo = np.maximum(q - limits.q_min, 0.0)
+    a = limits.qdd_max
+    pv_hi = np.minimum(limits.qd_max, np.minimum(np.sqrt(2.0 * a * d_hi), d_hi / dt_s))
+    pv_lo = -np.minimum(limits.qd_max, np.minimum(np.sqrt(2.0 * a * d_lo), d_lo / dt_s))
+    lb = np.maximum(pv_lo, qd - a * dt_s)
+    ub = np.minimum(pv_hi, qd + a * dt_s)
+    above = lb > ub
+    # The acceleration window lies entirely above or below the safe band: clamp to its nearest edge.
+    lb = np.where(above, np.where(qd - a * dt_s > pv_hi, pv_hi, pv_lo), lb)
+    ub = np.where(above, lb, ub)
+    return lb, ub
+
+
+def solve_joint_velocities(
+    J: np.ndarray,
+    v: np.ndarray,
+    q: np.ndarray,
+    qd: np.ndarray,
+    dt_s: float,
+    limits: JointLimits,
+    q_rest: np.ndarray | None = None,
+    damping: float = 1e-4,
+    posture_weight: float = 1e-3,
+    posture_gain: float = 1.0,
+) -> np.ndarray:
+    """Joint velocities (rad/s) realising twist ``v`` (6,) as closely as the limits allow.
+
+    ``J``: 6×n Jacobian (rows: linear then angular, world frame). ``q``, ``qd``: current joint positions
+    (rad) and velocities (rad/s). ``dt_s``: period over which the result is held (s). ``q_rest``: posture
+    to drift towards in the null space (rad; none: no posture term).
+    """
+    n = limits.n
+    if J.shape != (6, n):
+        raise ValueError(f"J must be 6x{n}")
+    lb, ub = joint_velocity_bounds(q, qd, dt_s, limits)
+    P = J.T @ J + damping * np.eye(n)
+    c = -J.T @ v
+    if q_rest is not None:
+        P += posture_weight * np.eye(n)
+        c -= posture_weight * posture_gain * (q_rest - q)
+    if np.all(lb == ub):
+        return lb
+    x = qpsolvers.solve_qp(P, c, lb=lb, ub=ub, solver="daqp")
+    if x is None:
+        raise RuntimeError("joint-velocity QP failed")
+    # The solver's own tolerance can leave the bounds by ~1e-12; the limits are hard.
+    return np.clip(x, lb, ub)

@@ -1,0 +1,53 @@
+"""Joint limits of the real arms, used by the simulated ones so that what works in simulation is
+feasible on hardware."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Per-joint limits: positions (rad), velocities (rad/s), accelerations (rad/s²)."""
+
+    q_min: np.ndarray
+    q_max: np.ndarray
+    qd_max: np.ndarray
+    qdd_max: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.q_min)
+        for name in ("q_min", "q_max", "qd_max", "qdd_max"):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.shape != (n,) or not np.all(np.isfinite(a)):
+                raise ValueError(f"{name} must be a finite ({n},) array")
+            object.__setattr__(self, name, a)
+        if np.any(self.q_min >= self.q_max) or np.any(self.qd_max <= 0) or np.any(self.qdd_max <= 0):
+            raise ValueError("need q_min < q_max and positive velocity and acceleration limits")
+
+    @property
+    def n(self) -> int:
+        """Number of joints."""
+        return len(self.q_min)
+
+
+# Franka Emika Panda, from Franka's "Robot and interface specifications" (the constants libfranka's
+# rate limiter uses): positions, kMaxJointVelocity, kMaxJointAcceleration.
+PANDA = JointLimits(
+    q_min=np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973]),
+    q_max=np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973]),
+    qd_max=np.array([2.1750, 2.1750, 2.1750, 2.1750, 2.6100, 2.6100, 2.6100]),
+    qdd_max=np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0]),
+)
+
+# Universal Robots UR5e, from the UR5e data sheet / user manual: ±360° on every joint, 180°/s on every
+# joint. The elbow is restricted to ±180° as in UR's ROS description (self-collision). UR publishes no
+# joint acceleration limit; 8 rad/s² is our conservative assumption, not a vendor figure.
+UR5E = JointLimits(
+    q_min=np.array([-2 * np.pi, -2 * np.pi, -np.pi, -2 * np.pi, -2 * np.pi, -2 * np.pi]),
+    q_max=np.array([2 * np.pi, 2 * np.pi, np.pi, 2 * np.pi, 2 * np.pi, 2 * np.pi]),
+    qd_max=np.full(6, np.pi),
+    qdd_max=np.full(6, 8.0),
+)

@@ -1,0 +1,173 @@
+"""Pbvs against an ideal double-integrator camera and a perfect (or noisy) pose oracle."""
+
+import numpy as np
+import pytest
+
+from evservo import geometry
+from evservo.control import CartesianLimits, Pbvs, pose_error, rotmat
+
+Z = 0.6
+
+
+def integrate(T_w_c: np.ndarray, v: np.ndarray, a: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact constant-acceleration step of a free-flying camera (rotation about a fixed axis exact)."""
+    T = np.eye(4)
+    T[:3, 3] = T_w_c[:3, 3] + v[:3] * h + 0.5 * a[:3] * h * h
+    T[:3, :3] = rotmat(v[3:] * h + 0.5 * a[3:] * h * h) @ T_w_c[:3, :3]
+    return T, v + a * h
+
+
+def run(ctrl: Pbvs, T_w_o_of_t, duration_s: float, pose_every: int = 1, dropout=(np.inf, np.inf)):
+    """Closed loop: camera starts at the desired pose w.r.t. the object at t = 0. Returns per period
+    (t, command, camera pose before the command, camera twist before the command)."""
+    h = ctrl.period_s
+    T_w_c = T_w_o_of_t(0.0) @ geometry.inv(geometry.pose((0, 0, Z)))
+    v = np.zeros(6)
+    ctrl.start(T_w_c, geometry.inv(T_w_c) @ T_w_o_of_t(0.0), t_s=0.0)
+    out = []
+    for i in range(1, round(duration_s / h) + 1):
+        t = i * h
+        T_c_o = None
+        if i % pose_every == 0 and not dropout[0] <= t < dropout[1]:
+            T_c_o = geometry.inv(T_w_c) @ T_w_o_of_t(t)
+        cmd = ctrl.update(t, T_w_c, v, T_c_o)
+        out.append((t, cmd, T_w_c, v))
+        T_w_c, v = integrate(T_w_c, v, cmd.a_c_w, h)
+    return out
+
+
+def test_step_response_is_critically_damped():
+    T0 = geometry.pose((0.4, 0.1, 0.5))
+    # Translation step plus a roll about the optical axis: both error parts then evolve along fixed
+    # directions, so each follows e0 (1 + √k t) e^{−√k t}.
+    step = geometry.pose((0.08, -0.05, 0.03), (0.0, 0.0, 0.25))
+    T1 = T0 @ step
+
+    ctrl = Pbvs(k=20.0, ema_alpha=1.0, period_s=0.001, max_jump_m=1.0, max_jump_rad=1.0)
+    out = run(ctrl, lambda t: T0 if t <= 0 else T1, 2.5)
+    t = np.array([o[0] for o in out])
+    e = np.array([o[1].e for o in out])
+    assert all(o[1].state == "ok" for o in out)
+    # The camera-frame error at the first period equals the step itself.
+    np.testing.assert_allclose(e[0, :3], [0.08, -0.05, 0.03], atol=1e-12)
+    np.testing.assert_allclose(e[0, 3:], [0, 0, 0.25], atol=1e-12)
+    s = np.sqrt(20.0)
+    shape = (1 + s * (t - t[0])) * np.exp(-s * (t - t[0]))
+    for part in (slice(0, 3), slice(3, 6)):
+        e0 = np.linalg.norm(e[0, part])
+        dev = np.abs(np.linalg.norm(e[:, part], axis=1) - e0 * shape).max()
+        assert dev < 0.01 * e0, dev / e0
+    assert np.linalg.norm(e[-1]) < 1e-3 * np.linalg.norm(e[0])
+
+
+@pytest.mark.parametrize("alpha", [0.5, 0.2])
+def test_ema_reduces_translation_jitter_by_expected_factor(alpha):
+    rng = np.random.default_rng(7)
+    n, sigma = 6000, 0.002
+    noise = rng.normal(0.0, sigma, size=(n, 3))
+    T_w_c = np.eye(4)
+    T_des = geometry.pose((0.0, 0.0, Z))
+
+    def jitter(a: float) -> float:
+        ctrl = Pbvs(ema_alpha=a, period_s=0.002)
+        ctrl.start(T_w_c, T_des, t_s=0.0)
+        errs = []
+        for i in range(n):
+            T_c_o = T_des.copy()
+            T_c_o[:3, 3] += noise[i]
+            # The camera is held still so the error is the filtered pose noise alone.
+            errs.append(ctrl.update((i + 1) * 0.002, T_w_c, np.zeros(6), T_c_o).e[:3])
+        return float(np.std(np.array(errs)[200:]))
+
+    raw, smoothed = jitter(1.0), jitter(alpha)
+    assert raw == pytest.approx(sigma, rel=0.05)
+    assert smoothed / raw == pytest.approx(np.sqrt(alpha / (2 - alpha)), rel=0.05)
+
+
+def constant_velocity_target(speed_mps: float):
+    T0 = geometry.pose((0.5, 0.0, 0.5), (0.2, -0.1, 0.0))
+    return lambda t: geometry.pose((speed_mps * t, 0.0, 0.0)) @ T0
+
+
+def test_feedforward_removes_ramp_lag():
+    speed = 0.3
+    lags = {}
+    for ff in (False, True):
+        ctrl = Pbvs(feedforward=ff, period_s=0.002)
+        out = run(ctrl, constant_velocity_target(speed), 6.0, pose_every=5)  # 100 Hz poses
+        tail = np.array([np.linalg.norm(o[1].e[:3]) for o in out if o[0] > 5.0])
+        lags[ff] = tail.mean()
+    # Without feed-forward the PD law settles where k e = 2√k v: a lag of 2 v / √k.
+    assert lags[False] == pytest.approx(2 * speed / np.sqrt(20.0), rel=0.03)
+    assert lags[True] < 0.1 * lags[False], lags
+
+
+def test_watchdog_brakes_after_dropout_and_limits_hold():
+    limits = CartesianLimits(max_lin_vel=0.5, max_ang_vel=1.0, max_lin_acc=3.0, max_ang_acc=6.0)
+    h = 0.002
+    ctrl = Pbvs(feedforward=True, period_s=h, limits=limits)
+    drop = (2.0, 3.0)
+    out = run(ctrl, constant_velocity_target(0.3), 6.0, pose_every=5, dropout=drop)
+
+    t = np.array([o[0] for o in out])
+    states = [o[1].state for o in out]
+    v_cmd = np.array([o[1].v_c_w for o in out])
+    v_now = np.array([o[3] for o in out])
+    last_pose_t = max(ti for ti in t if ti < drop[0] and round(ti / h) % 5 == 0)
+    i_stale = int(np.argmax((t > drop[0]) & (np.array(states) == "stale")))
+    assert states[i_stale - 1] == "ok"
+    assert 0.05 - 1e-9 <= t[i_stale] - last_pose_t <= 0.05 + h + 1e-9
+    speed_at_stale = np.linalg.norm(v_now[i_stale, :3])
+    assert speed_at_stale > 0.25  # it was following the 0.3 m/s target
+    i_zero = i_stale + int(np.argmax(np.all(v_cmd[i_stale:] == 0.0, axis=1)))
+    assert np.all(v_cmd[i_zero : np.searchsorted(t, drop[1])] == 0.0)
+    assert t[i_zero] <= last_pose_t + 0.05 + speed_at_stale / limits.max_lin_acc + h + 1e-9
+    # Poses come back 0.3 m away: re-acquired, servoing resumes and converges again.
+    assert states[np.searchsorted(t, drop[1]) + 5] == "ok"
+    assert np.linalg.norm(out[-1][1].e[:3]) < 0.15
+    # Never beyond the limits, including while catching up after the dropout.
+    acc = (v_cmd - v_now) / h
+    assert np.linalg.norm(v_cmd[:, :3], axis=1).max() <= limits.max_lin_vel + 1e-12
+    assert np.linalg.norm(v_cmd[:, 3:], axis=1).max() <= limits.max_ang_vel + 1e-12
+    assert np.linalg.norm(acc[:, :3], axis=1).max() <= limits.max_lin_acc * (1 + 1e-9)
+    assert np.linalg.norm(acc[:, 3:], axis=1).max() <= limits.max_ang_acc * (1 + 1e-9)
+    assert np.linalg.norm(v_cmd[:, :3], axis=1).max() == pytest.approx(limits.max_lin_vel)  # limit was hit
+
+
+def test_rejects_nan_jump_and_out_of_order_then_resumes():
+    T_w_c = np.eye(4)
+    T_des = geometry.pose((0.0, 0.0, Z))
+    ctrl = Pbvs(period_s=0.002)
+    ctrl.start(T_w_c, T_des, t_s=0.0)
+    bad = T_des.copy()
+    bad[0, 3] = np.nan
+    cmd = ctrl.update(0.002, T_w_c, np.zeros(6), bad)
+    assert cmd.state == "rejected" and "NaN" in cmd.reason
+    jumped = geometry.pose((0.2, 0.0, Z))
+    cmd = ctrl.update(0.004, T_w_c, np.zeros(6), jumped)
+    assert cmd.state == "rejected" and "jump" in cmd.reason
+    np.testing.assert_allclose(cmd.e, 0.0, atol=1e-12)  # the rejected pose did not move the target
+    moved = geometry.pose((0.01, 0.0, Z))
+    cmd = ctrl.update(0.006, T_w_c, np.zeros(6), moved)
+    assert cmd.state == "ok"
+    assert cmd.e[0] == pytest.approx(0.5 * 0.01)  # EMA with alpha 0.5
+    cmd = ctrl.update(0.008, T_w_c, cmd.v_c_w, moved, pose_t_s=0.005)
+    assert cmd.state == "rejected" and "older" in cmd.reason
+
+
+def test_stop_brakes_to_rest_and_reports_stopped():
+    ctrl = Pbvs(period_s=0.01)
+    assert ctrl.update(0.0, np.eye(4), np.zeros(6)).state == "stopped"
+    ctrl.start(np.eye(4), geometry.pose((0, 0, Z)), t_s=0.0)
+    ctrl.stop()
+    v = np.array([0.2, 0.0, 0.0, 0.0, 0.0, 0.3])
+    cmd = ctrl.update(0.01, np.eye(4), v)
+    assert cmd.state == "stopped"
+    np.testing.assert_allclose(cmd.v_c_w, [0.2 - 4.0 * 0.01, 0, 0, 0, 0, 0.3 - 8.0 * 0.01])
+
+
+def test_pose_error_is_paper_definition():
+    T_w_c = geometry.pose((1.0, 0.0, 0.0), (0.0, 0.0, np.pi / 2))
+    T_w_ctgt = geometry.pose((1.0, 0.1, 0.0), (0.0, 0.0, np.pi / 2 + 0.1))
+    # 0.1 m along world y is along the camera's x after its 90° yaw.
+    np.testing.assert_allclose(pose_error(T_w_c, T_w_ctgt), [0.1, 0, 0, 0, 0, 0.1], atol=1e-12)
