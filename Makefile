@@ -12,9 +12,11 @@ export PATH := $(abspath $(BIN)):$(HOME)/.cargo/bin:$(PATH)
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
-$(VENV)/.deps: requirements.txt | $(BIN)/python
+$(VENV)/.deps: requirements.txt Makefile | $(BIN)/python
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -r requirements.txt
+	# Only robosuite's MIT-licensed robot MJCF/mesh files are read; its own dependencies are not needed.
+	$(BIN)/python -m pip install -q --no-deps robosuite==1.5.2
 	touch $@
 
 # maturin rebuilds incrementally; a no-change build takes seconds.
