@@ -454,7 +454,6 @@ fn or_pool(src: &[u8], roi: Roi, dst: &mut Vec<u8>, pair_row: &mut Vec<u8>) {
 }
 
 /// Truncated field values of a `w`×`h` mask into `out`.
-#[allow(clippy::too_many_arguments)]
 fn truncated_field(
     mask: &[u8],
     w: usize,
