@@ -45,7 +45,7 @@ def test_euclidean_distance_matches_opencv(h, w, density):
 
 
 @pytest.mark.parametrize(("h", "w", "density"), CASES)
-@pytest.mark.parametrize("tau", [10.0, 3.5, 200.0])
+@pytest.mark.parametrize("tau", [10.0, 3.5, 30.0, 200.0])
 def test_level0_is_rounded_truncated_opencv_distance(h, w, density, tau):
     rng = np.random.default_rng(h * 7 + w)
     mask = random_mask(rng, h, w, density)
