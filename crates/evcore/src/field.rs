@@ -20,7 +20,8 @@
 //!
 //! The build is two separable passes. Distances beyond τ are never needed, so the column pass
 //! counts in `u8` up to a cap just above τ, and the row pass only looks at candidates within τ,
-//! in `i16` lanes that SSE2 processes eight at a time; a block of pixels stops early once every
+//! on small integer squared distances: `u8` lanes (16 per SSE2 vector) while the squared cap fits
+//! a byte, as it does for the default τ, else `i16`. A block of pixels stops early once every
 //! pixel of it already has a candidate closer than the next offset. For τ too large for those
 //! integers, the build falls back to the exact Felzenszwalb–Huttenlocher transform, which also
 //! backs [`euclidean_distance`].
@@ -34,11 +35,11 @@ pub const DEFAULT_TAU_PX: f32 = 10.0;
 /// Most pyramid levels a field can have (full, ½, ¼).
 pub const MAX_LEVELS: u32 = 3;
 
-/// Largest τ whose window search fits `i16` lanes: cap² + window² must stay below 2^15.
-const MAX_WINDOW_PX: usize = 126;
+/// Largest window (⌊τ⌋) whose squared cap fits `u8` lanes: (window + 1)² ≤ 255.
+const MAX_BYTE_WINDOW_PX: usize = 14;
 
-/// Row pixels processed together by the windowed row pass (two SSE2 vectors of `i16`).
-const LANES: usize = 16;
+/// Largest window (⌊τ⌋) whose squared cap fits `i16` lanes: (window + 1)² ≤ 32767.
+const MAX_WINDOW_PX: usize = 180;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FieldParams {
@@ -314,8 +315,9 @@ pub struct DistanceField {
 struct Scratch {
     /// Capped vertical distances (column pass).
     col: Vec<u8>,
-    /// One padded row of squared vertical distances.
-    row: Vec<i16>,
+    /// One padded row of squared vertical distances, in the lane type of the window.
+    row8: Vec<u8>,
+    row16: Vec<i16>,
     /// f as a function of the integer squared distance.
     lut: Vec<f32>,
     /// Squared vertical distances (exact fallback path).
@@ -479,7 +481,6 @@ fn or_pool(src: &[u8], roi: Roi, dst: &mut Vec<u8>, pair_row: &mut Vec<u8>) {
 }
 
 /// Truncated field values of a `w`×`h` mask into `out`.
-#[allow(clippy::too_many_arguments)]
 fn truncated_field(
     mask: &[u8],
     w: usize,
@@ -493,7 +494,8 @@ fn truncated_field(
     }
     let Scratch {
         col,
-        row,
+        row8,
+        row16,
         lut,
         d2,
         fh,
@@ -509,23 +511,80 @@ fn truncated_field(
     // Any cap above τ is exact after truncation: a capped candidate is still farther than τ.
     let cap = (window + 1) as u8;
     column_pass(mask, w, h, cap, col);
-    // Pads of cap² keep the row window free of bounds tests; the right pad also rounds the
-    // row up to whole blocks of LANES.
-    let padded = window + w.div_ceil(LANES) * LANES + window;
-    row.clear();
-    row.resize(padded, i16::from(cap) * i16::from(cap));
     // Squared distances are small integers (at most cap²), so f comes from a table.
     let top = usize::from(cap) * usize::from(cap);
     lut.clear();
     lut.extend((0..=top).map(|d2| rounded_distance((d2 as f32).sqrt(), tau)));
+    // Blocks of two SSE2 vectors: 32 bytes or 16 halfwords.
+    if window <= MAX_BYTE_WINDOW_PX {
+        row_pass::<u8, 32>(col, w, window, cap, out, row8, lut);
+    } else {
+        row_pass::<i16, 16>(col, w, window, cap, out, row16, lut);
+    }
+}
+
+/// Integer lanes of the windowed row pass. Sums saturate, which is exact here: any saturated
+/// candidate is beyond the cap and so beyond τ.
+trait Lane: Copy + Ord + Default {
+    fn from_small(v: usize) -> Self;
+    fn sat_add(self, other: Self) -> Self;
+    fn index(self) -> usize;
+}
+
+impl Lane for u8 {
+    #[inline]
+    fn from_small(v: usize) -> Self {
+        v as u8
+    }
+    #[inline]
+    fn sat_add(self, other: Self) -> Self {
+        self.saturating_add(other)
+    }
+    #[inline]
+    fn index(self) -> usize {
+        usize::from(self)
+    }
+}
+
+impl Lane for i16 {
+    #[inline]
+    fn from_small(v: usize) -> Self {
+        v as i16
+    }
+    #[inline]
+    fn sat_add(self, other: Self) -> Self {
+        self.saturating_add(other)
+    }
+    #[inline]
+    fn index(self) -> usize {
+        self.max(0) as usize
+    }
+}
+
+/// Row pass over the capped column distances `col`: f of the squared distance, via `lut`.
+fn row_pass<T: Lane, const N: usize>(
+    col: &[u8],
+    w: usize,
+    window: usize,
+    cap: u8,
+    out: &mut [f32],
+    row: &mut Vec<T>,
+    lut: &[f32],
+) {
+    let top = lut.len() - 1;
+    // Pads of cap² keep the row window free of bounds tests; the right pad also rounds the
+    // row up to whole blocks.
+    let capsq = T::from_small(usize::from(cap) * usize::from(cap));
+    row.clear();
+    row.resize(window + w.div_ceil(N) * N + window, capsq);
     for (g, orow) in col.chunks_exact(w).zip(out.chunks_exact_mut(w)) {
         for (p, &gv) in row[window..window + w].iter_mut().zip(g) {
-            *p = i16::from(gv) * i16::from(gv);
+            *p = T::from_small(usize::from(gv) * usize::from(gv));
         }
-        for (x0, oblock) in (0..w).step_by(LANES).zip(orow.chunks_mut(LANES)) {
-            let d2 = window_min(&row[x0..x0 + 2 * window + LANES], window);
+        for (x0, oblock) in (0..w).step_by(N).zip(orow.chunks_mut(N)) {
+            let d2 = window_min::<T, N>(&row[x0..x0 + 2 * window + N], window);
             for (o, &d) in oblock.iter_mut().zip(&d2) {
-                *o = lut[(d as usize).min(top)];
+                *o = lut[d.index().min(top)];
             }
         }
     }
@@ -578,22 +637,22 @@ fn sweep_up(row: &mut [u8], below: &[u8]) {
     }
 }
 
-/// Squared distances of LANES pixels: min over offsets k in −window..=window of row[x + k] + k²,
+/// Squared distances of N pixels: min over offsets k in −window..=window of row[x + k] + k²,
 /// where `seg` starts `window` pixels before the block. Stops once k² reaches the block's
 /// current maximum, since no farther candidate can then improve any pixel.
 #[inline]
-fn window_min(seg: &[i16], window: usize) -> [i16; LANES] {
-    let mut acc = [0i16; LANES];
-    acc.copy_from_slice(&seg[window..window + LANES]);
+fn window_min<T: Lane, const N: usize>(seg: &[T], window: usize) -> [T; N] {
+    let mut acc = [T::default(); N];
+    acc.copy_from_slice(&seg[window..window + N]);
     for k in 1..=window {
-        let kk = (k * k) as i16;
-        if acc.iter().fold(0, |m, &a| m.max(a)) <= kk {
+        let kk = T::from_small(k * k);
+        if acc.iter().fold(T::default(), |m, &a| m.max(a)) <= kk {
             break;
         }
-        let left = &seg[window - k..window - k + LANES];
-        let right = &seg[window + k..window + k + LANES];
+        let left = &seg[window - k..window - k + N];
+        let right = &seg[window + k..window + k + N];
         for ((a, &l), &r) in acc.iter_mut().zip(left).zip(right) {
-            *a = (*a).min(l.min(r) + kk);
+            *a = (*a).min(l.min(r).sat_add(kk));
         }
     }
     acc
@@ -818,7 +877,8 @@ mod tests {
             (33, 29, 0.1, 3.7),
             (17, 70, 0.05, 1.0),
             (20, 20, 0.05, 0.4),
-            (45, 38, 0.003, 150.0),
+            (45, 38, 0.003, 40.0),
+            (45, 38, 0.003, 250.0),
             (1, 30, 0.1, 10.0),
             (30, 1, 0.1, 10.0),
         ];
