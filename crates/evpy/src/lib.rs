@@ -6,6 +6,7 @@ use pyo3::prelude::*;
 mod camera;
 mod errors;
 mod field;
+mod tracker;
 
 #[pymodule]
 fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -13,5 +14,6 @@ fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("DecodeError", m.py().get_type::<errors::DecodeError>())?;
     camera::register(m)?;
     field::register(m)?;
+    tracker::register(m)?;
     Ok(())
 }

@@ -88,6 +88,9 @@ pub fn matrix_from_py(m: &PyReadonlyArray2<'_, f64>) -> PyResult<evcore::Pose> {
     pose_from_matrix(&arr).map_err(to_py)
 }
 
+/// A field image and the (x0, y0) of its region in the rectified image.
+type FieldWithOrigin<'py> = (Bound<'py, PyArray2<f32>>, (u32, u32));
+
 enum State {
     Sync(Box<TrackerCore>),
     Threaded(ThreadedTracker),
@@ -288,7 +291,7 @@ impl PyTracker {
     }
 
     /// The last full-resolution field: (values (h, w) float32, (x0, y0) of its region).
-    fn field<'py>(&mut self, py: Python<'py>) -> PyResult<(Bound<'py, PyArray2<f32>>, (u32, u32))> {
+    fn field<'py>(&mut self, py: Python<'py>) -> PyResult<FieldWithOrigin<'py>> {
         let lvl = self.sync_core()?.field_level0();
         let (w, h) = (lvl.roi.width as usize, lvl.roi.height as usize);
         let arr = numpy::ndarray::Array2::from_shape_vec((h, w), lvl.value.clone())

@@ -18,7 +18,7 @@ use crate::error::{ensure, Error, Result};
 use crate::image::Roi;
 
 /// A front-end that ingests rectified events and reports which pixels are active.
-pub trait EventSurface: Send {
+pub trait EventSurface: Send + Sync {
     /// Ingest events at rectified pixel indices (y·width + x) with polarities (0 OFF, nonzero ON).
     /// Indices ≥ width·height are skipped; if the slices differ in length the extra tail of the
     /// longer one is ignored (SCARF, fixed-count and EROS all ignore polarity).
