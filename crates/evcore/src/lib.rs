@@ -12,6 +12,7 @@ pub mod event;
 pub mod image;
 pub mod rng;
 pub mod se3;
+pub mod sim;
 
 pub use camera::{Camera, UndistortLut};
 pub use error::{Error, Result};
