@@ -50,7 +50,8 @@ pub(super) struct Row {
     pub leak_per_us: Vec<f32>,
     /// Scratch reused between steps to avoid per-step allocation.
     pub events: Vec<RawEvent>,
-    pub shots: Vec<Shot>,
+    shots: Vec<Shot>,
+    busy: Vec<usize>,
 }
 
 /// Log intensity as the sensor model sees it; f32 because the frames are f32 and the state is
@@ -71,6 +72,7 @@ impl Row {
             leak_per_us: vec![0.0; width],
             events: Vec::new(),
             shots: Vec::new(),
+            busy: Vec::new(),
         }
     }
 
@@ -127,48 +129,93 @@ impl Row {
     }
 
     /// Advance columns `x0 .. x0 + frame.len()` to the new intensities `frame` and append
-    /// their events to `self.events` (pixel order, time order within a pixel).
-    /// `idx0` is the row-major index of column `x0`.
+    /// their events to `self.events` (time order within a pixel; pixels in no particular
+    /// order, the caller sorts). `idx0` is the row-major index of column `x0`.
     pub fn step(&mut self, frame: &[f32], x0: usize, idx0: u32, iv: &Interval, rng: &mut Rng) {
         self.events.clear();
         self.sample_shots(frame, iv, rng);
         let shots = std::mem::take(&mut self.shots);
-        let mut next_shot = 0;
-        for (c, &i1) in frame.iter().enumerate() {
-            let start = next_shot;
-            while next_shot < shots.len() && shots[next_shot].col as usize == c {
-                next_shot += 1;
-            }
-            self.step_pixel(x0 + c, idx0 + c as u32, i1, &shots[start..next_shot], iv);
+        let mut busy = std::mem::take(&mut self.busy);
+        busy.clear();
+        // Columns with noise always take the full path; the spans between them go through the
+        // quiet-pixel pass, which defers the few pixels that cross a threshold.
+        let mut from = 0;
+        let mut k = 0;
+        while k < shots.len() {
+            let col = shots[k].col as usize;
+            let end = shots[k..]
+                .iter()
+                .position(|s| s.col as usize != col)
+                .map_or(shots.len(), |n| k + n);
+            self.quiet_span(&frame[from..col], x0 + from, iv, &mut busy);
+            self.step_pixel(x0 + col, idx0 + col as u32, frame[col], &shots[k..end], iv);
+            from = col + 1;
+            k = end;
+        }
+        self.quiet_span(&frame[from..], x0 + from, iv, &mut busy);
+        for &x in &busy {
+            let c = x - x0;
+            self.step_pixel(x, idx0 + c as u32, frame[c], &[], iv);
         }
         self.shots = shots;
+        self.busy = busy;
     }
 
+    /// Update the pixels of columns `x .. x + frame.len()` whose level stays strictly inside
+    /// (ref − C_off, ref + C_on) over the interval — almost all of them — and push the others'
+    /// columns to `busy`, untouched. A straight line that starts and ends inside that band never
+    /// leaves it, so checking the end is enough. Kept branch-light and free of bounds checks:
+    /// this loop is the simulator's cost for a static background.
+    fn quiet_span(&mut self, frame: &[f32], x: usize, iv: &Interval, busy: &mut Vec<usize>) {
+        let n = frame.len();
+        let dt = iv.dt_us as f64;
+        let state = self.prev_i[x..x + n]
+            .iter_mut()
+            .zip(&mut self.prev_l[x..x + n])
+            .zip(&mut self.ref_l[x..x + n])
+            .zip(&self.c_pos[x..x + n])
+            .zip(&self.c_neg[x..x + n])
+            .zip(&self.leak_per_us[x..x + n]);
+        for (c, (&i1, (((((pi, pl), rl), &cp), &cn), &leak))) in frame.iter().zip(state).enumerate()
+        {
+            // Unchanged intensity skips the logarithm, the dominant cost for a static background.
+            let l1 = if i1.to_bits() == pi.to_bits() {
+                *pl
+            } else {
+                log_intensity(i1, iv.log_eps)
+            };
+            // Leak lowers the reference steadily; equivalently the signal rises by `drift`
+            // relative to a fixed reference, which keeps the whole interval one straight line.
+            let drift = f64::from(leak) * dt;
+            let r = f64::from(*rl);
+            let d = f64::from(l1) + drift - r;
+            if d < f64::from(cp) && -d < f64::from(cn) {
+                *pi = i1;
+                *pl = l1;
+                *rl = (r - drift) as f32;
+            } else {
+                busy.push(x + c);
+            }
+        }
+    }
+
+    /// The full model for one pixel: crossings, refractory gating and the noise arrivals
+    /// `shots` (sorted by time).
     fn step_pixel(&mut self, x: usize, idx: u32, i1: f32, shots: &[Shot], iv: &Interval) {
         let i0 = self.prev_i[x];
         let l0 = f64::from(self.prev_l[x]);
-        // Unchanged intensity skips the logarithm, the dominant cost for a static background.
         let l1_f32 = if i1.to_bits() == i0.to_bits() {
             self.prev_l[x]
         } else {
             log_intensity(i1, iv.log_eps)
         };
         let l1 = f64::from(l1_f32);
-        // Leak lowers the reference steadily; equivalently the signal rises by `drift` relative
-        // to a fixed reference, which keeps the whole interval one straight line g(s).
         let drift = f64::from(self.leak_per_us[x]) * iv.dt_us as f64;
         let g1 = l1 + drift;
         let mut r = f64::from(self.ref_l[x]);
         let (cp, cn) = (f64::from(self.c_pos[x]), f64::from(self.c_neg[x]));
         self.prev_i[x] = i1;
         self.prev_l[x] = l1_f32;
-        // A line that starts and ends inside the band (r − cn, r + cp) never leaves it.
-        if shots.is_empty() && g1 - r < cp && r - g1 < cn {
-            if drift != 0.0 {
-                self.ref_l[x] = (r - drift) as f32;
-            }
-            return;
-        }
         let line = Line { l0, slope: g1 - l0 };
         let mut last_t = self.last_t_us[x];
         let mut s_a = 0.0;
