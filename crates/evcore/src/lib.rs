@@ -19,6 +19,7 @@ pub mod se3;
 pub mod solve;
 pub mod tracker;
 pub mod surface;
+pub mod sim;
 
 pub use camera::{Camera, UndistortLut};
 pub use error::{Error, Result};

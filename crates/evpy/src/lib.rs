@@ -7,6 +7,7 @@ mod camera;
 mod errors;
 mod field;
 mod tracker;
+mod sim;
 
 #[pymodule]
 fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -15,5 +16,6 @@ fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     camera::register(m)?;
     field::register(m)?;
     tracker::register(m)?;
+    sim::register(m)?;
     Ok(())
 }

@@ -1,0 +1,312 @@
+//! The per-row pixel kernel: threshold crossings, refractory gating, leak drift and shot noise
+//! for one row of pixels over one frame interval. Rows are independent, so the caller runs
+//! them in parallel, each with its own random stream.
+
+use crate::rng::Rng;
+
+/// `last_t_us` of a pixel that has never fired.
+pub(super) const NEVER: i64 = i64::MIN;
+
+/// One emitted event before the frame-wide sort; `idx` is the row-major pixel index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct RawEvent {
+    pub t_us: i64,
+    pub idx: u32,
+    pub on: bool,
+}
+
+/// A shot-noise arrival: column inside the processed span, fraction `s` ∈ [0, 1) of the interval.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Shot {
+    col: u32,
+    s: f64,
+    on: bool,
+}
+
+/// What one frame interval looks like to every pixel.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Interval {
+    pub t0_us: i64,
+    pub dt_us: i64,
+    pub refractory_us: i64,
+    pub log_eps: f32,
+    /// Shot-noise rate in the dark, per pixel and microsecond.
+    pub shot_per_us: f64,
+    /// Shot-rate multiplier at intensity 1.
+    pub shot_bright_factor: f64,
+}
+
+/// State and fixed-pattern constants of one sensor row, struct of arrays so the static-pixel
+/// fast path touches as little memory as possible.
+#[derive(Debug, Clone)]
+pub(super) struct Row {
+    pub prev_i: Vec<f32>,
+    pub prev_l: Vec<f32>,
+    pub ref_l: Vec<f32>,
+    pub last_t_us: Vec<i64>,
+    pub c_pos: Vec<f32>,
+    pub c_neg: Vec<f32>,
+    /// Leak drift of the reference, log units per microsecond.
+    pub leak_per_us: Vec<f32>,
+    /// Scratch reused between steps to avoid per-step allocation.
+    pub events: Vec<RawEvent>,
+    shots: Vec<Shot>,
+    busy: Vec<usize>,
+}
+
+/// Log intensity as the sensor model sees it; f32 because the frames are f32 and the state is
+/// stored in f32.
+pub(super) fn log_intensity(i: f32, log_eps: f32) -> f32 {
+    (log_eps + i).ln()
+}
+
+impl Row {
+    pub fn new(width: usize) -> Self {
+        Self {
+            prev_i: vec![0.0; width],
+            prev_l: vec![0.0; width],
+            ref_l: vec![0.0; width],
+            last_t_us: vec![NEVER; width],
+            c_pos: vec![0.0; width],
+            c_neg: vec![0.0; width],
+            leak_per_us: vec![0.0; width],
+            events: Vec::new(),
+            shots: Vec::new(),
+            busy: Vec::new(),
+        }
+    }
+
+    /// Set every pixel to the intensities `frame` (the whole row) with its reference at the
+    /// current level and no event history.
+    pub fn reset(&mut self, frame: &[f32], log_eps: f32) {
+        for (x, &i) in frame.iter().enumerate() {
+            let l = log_intensity(i, log_eps);
+            self.prev_i[x] = i;
+            self.prev_l[x] = l;
+            self.ref_l[x] = l;
+            self.last_t_us[x] = NEVER;
+        }
+        self.events.clear();
+    }
+
+    /// Draw shot-noise arrivals for columns `x0 .. x0 + frame.len()` over the interval into
+    /// `self.shots`, sorted by column then time.
+    ///
+    /// The row's pixel-time plane is laid end to end as one line of length n·Δt and a Poisson
+    /// process at the highest per-pixel rate is run along it (exponential gaps), then thinned by
+    /// each pixel's intensity-dependent rate: exact Poisson statistics at a cost proportional to
+    /// the number of arrivals, not of pixels.
+    fn sample_shots(&mut self, frame: &[f32], iv: &Interval, rng: &mut Rng) {
+        self.shots.clear();
+        if iv.shot_per_us <= 0.0 {
+            return;
+        }
+        let dt = iv.dt_us as f64;
+        let max_factor = iv.shot_bright_factor.max(1.0);
+        let rate = iv.shot_per_us * max_factor;
+        let length = frame.len() as f64 * dt;
+        let mut pos = 0.0;
+        loop {
+            // 1 − u lies in (0, 1], so the log is finite.
+            pos += -(1.0 - rng.uniform()).ln() / rate;
+            if pos >= length {
+                return;
+            }
+            let col = ((pos / dt) as usize).min(frame.len() - 1);
+            let s = ((pos - col as f64 * dt) / dt).clamp(0.0, 1.0);
+            let bright = f64::from(frame[col]).clamp(0.0, 1.0);
+            let factor = 1.0 + (iv.shot_bright_factor - 1.0) * bright;
+            let keep = rng.uniform() * max_factor < factor;
+            let on = rng.uniform() < 0.5;
+            if keep {
+                self.shots.push(Shot {
+                    col: col as u32,
+                    s,
+                    on,
+                });
+            }
+        }
+    }
+
+    /// Advance columns `x0 .. x0 + frame.len()` to the new intensities `frame` and append
+    /// their events to `self.events` (time order within a pixel; pixels in no particular
+    /// order, the caller sorts). `idx0` is the row-major index of column `x0`.
+    pub fn step(&mut self, frame: &[f32], x0: usize, idx0: u32, iv: &Interval, rng: &mut Rng) {
+        self.events.clear();
+        self.sample_shots(frame, iv, rng);
+        let shots = std::mem::take(&mut self.shots);
+        let mut busy = std::mem::take(&mut self.busy);
+        busy.clear();
+        // Columns with noise always take the full path; the spans between them go through the
+        // quiet-pixel pass, which defers the few pixels that cross a threshold.
+        let mut from = 0;
+        let mut k = 0;
+        while k < shots.len() {
+            let col = shots[k].col as usize;
+            let end = shots[k..]
+                .iter()
+                .position(|s| s.col as usize != col)
+                .map_or(shots.len(), |n| k + n);
+            self.quiet_span(&frame[from..col], x0 + from, iv, &mut busy);
+            self.step_pixel(x0 + col, idx0 + col as u32, frame[col], &shots[k..end], iv);
+            from = col + 1;
+            k = end;
+        }
+        self.quiet_span(&frame[from..], x0 + from, iv, &mut busy);
+        for &x in &busy {
+            let c = x - x0;
+            self.step_pixel(x, idx0 + c as u32, frame[c], &[], iv);
+        }
+        self.shots = shots;
+        self.busy = busy;
+    }
+
+    /// Update the pixels of columns `x .. x + frame.len()` whose level stays strictly inside
+    /// (ref − C_off, ref + C_on) over the interval — almost all of them — and push the others'
+    /// columns to `busy`, untouched. A straight line that starts and ends inside that band never
+    /// leaves it, so checking the end is enough. Kept branch-light and free of bounds checks:
+    /// this loop is the simulator's cost for a static background.
+    fn quiet_span(&mut self, frame: &[f32], x: usize, iv: &Interval, busy: &mut Vec<usize>) {
+        let n = frame.len();
+        let dt = iv.dt_us as f64;
+        let state = self.prev_i[x..x + n]
+            .iter_mut()
+            .zip(&mut self.prev_l[x..x + n])
+            .zip(&mut self.ref_l[x..x + n])
+            .zip(&self.c_pos[x..x + n])
+            .zip(&self.c_neg[x..x + n])
+            .zip(&self.leak_per_us[x..x + n]);
+        for (c, (&i1, (((((pi, pl), rl), &cp), &cn), &leak))) in frame.iter().zip(state).enumerate()
+        {
+            // Unchanged intensity skips the logarithm, the dominant cost for a static background.
+            let l1 = if i1.to_bits() == pi.to_bits() {
+                *pl
+            } else {
+                log_intensity(i1, iv.log_eps)
+            };
+            // Leak lowers the reference steadily; equivalently the signal rises by `drift`
+            // relative to a fixed reference, which keeps the whole interval one straight line.
+            let drift = f64::from(leak) * dt;
+            let r = f64::from(*rl);
+            let d = f64::from(l1) + drift - r;
+            if d < f64::from(cp) && -d < f64::from(cn) {
+                *pi = i1;
+                *pl = l1;
+                *rl = (r - drift) as f32;
+            } else {
+                busy.push(x + c);
+            }
+        }
+    }
+
+    /// The full model for one pixel: crossings, refractory gating and the noise arrivals
+    /// `shots` (sorted by time).
+    fn step_pixel(&mut self, x: usize, idx: u32, i1: f32, shots: &[Shot], iv: &Interval) {
+        let i0 = self.prev_i[x];
+        let l0 = f64::from(self.prev_l[x]);
+        let l1_f32 = if i1.to_bits() == i0.to_bits() {
+            self.prev_l[x]
+        } else {
+            log_intensity(i1, iv.log_eps)
+        };
+        let l1 = f64::from(l1_f32);
+        let drift = f64::from(self.leak_per_us[x]) * iv.dt_us as f64;
+        let g1 = l1 + drift;
+        let mut r = f64::from(self.ref_l[x]);
+        let (cp, cn) = (f64::from(self.c_pos[x]), f64::from(self.c_neg[x]));
+        self.prev_i[x] = i1;
+        self.prev_l[x] = l1_f32;
+        let line = Line { l0, slope: g1 - l0 };
+        let mut last_t = self.last_t_us[x];
+        let mut s_a = 0.0;
+        for shot in shots {
+            r = self.crossings(&line, r, (cp, cn), (s_a, shot.s), idx, &mut last_t, iv);
+            let t = iv.t_at(shot.s);
+            // A pixel inside its refractory period is blind: the noise neither fires nor resets.
+            if refractory_allows(last_t, t, iv.refractory_us) {
+                self.events.push(RawEvent {
+                    t_us: t,
+                    idx,
+                    on: shot.on,
+                });
+                last_t = t;
+                r = line.at(shot.s);
+            }
+            s_a = shot.s;
+        }
+        r = self.crossings(&line, r, (cp, cn), (s_a, 1.0), idx, &mut last_t, iv);
+        self.last_t_us[x] = last_t;
+        self.ref_l[x] = (r - drift) as f32;
+    }
+
+    /// Emit every level r ± k·c crossed by the line on [s_a, s_b]; returns the new reference.
+    /// Levels suppressed by the refractory period still move the reference (ESIM semantics).
+    #[allow(clippy::too_many_arguments)]
+    fn crossings(
+        &mut self,
+        line: &Line,
+        r: f64,
+        (cp, cn): (f64, f64),
+        (s_a, s_b): (f64, f64),
+        idx: u32,
+        last_t: &mut i64,
+        iv: &Interval,
+    ) -> f64 {
+        let gb = line.at(s_b);
+        let (step, n, on) = if gb - r >= cp {
+            (cp, ((gb - r) / cp).floor(), true)
+        } else if r - gb >= cn {
+            (-cn, ((r - gb) / cn).floor(), false)
+        } else {
+            return r;
+        };
+        let n = n as u64;
+        for k in 1..=n {
+            // Levels from r directly rather than by accumulation, so rounding does not build up.
+            let level = r + k as f64 * step;
+            let s = line.time_of(level, s_b).max(s_a).min(s_b);
+            let t = iv.t_at(s);
+            if refractory_allows(*last_t, t, iv.refractory_us) {
+                self.events.push(RawEvent { t_us: t, idx, on });
+                *last_t = t;
+            }
+        }
+        r + n as f64 * step
+    }
+}
+
+/// g(s) = l0 + slope·s over the interval, s ∈ [0, 1].
+struct Line {
+    l0: f64,
+    slope: f64,
+}
+
+impl Line {
+    fn at(&self, s: f64) -> f64 {
+        self.l0 + self.slope * s
+    }
+
+    /// Where the line reaches `level`; a flat line (reachable only through f32 rounding of the
+    /// stored reference) is taken to cross at `fallback`.
+    fn time_of(&self, level: f64, fallback: f64) -> f64 {
+        let s = (level - self.l0) / self.slope;
+        if s.is_finite() {
+            s
+        } else {
+            fallback
+        }
+    }
+}
+
+impl Interval {
+    /// Microsecond timestamp of fraction `s` of the interval, rounded to nearest and kept
+    /// inside [t0, t0 + Δt] even when Δt exceeds f64's exact-integer range.
+    fn t_at(&self, s: f64) -> i64 {
+        let off = (s * self.dt_us as f64).round() as i64;
+        self.t0_us + off.clamp(0, self.dt_us)
+    }
+}
+
+fn refractory_allows(last_t: i64, t: i64, refractory_us: i64) -> bool {
+    last_t == NEVER || t.saturating_sub(last_t) >= refractory_us
+}
