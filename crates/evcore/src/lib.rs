@@ -16,10 +16,10 @@ pub mod pointset;
 pub mod render;
 pub mod rng;
 pub mod se3;
-pub mod solve;
-pub mod tracker;
-pub mod surface;
 pub mod sim;
+pub mod solve;
+pub mod surface;
+pub mod tracker;
 
 pub use camera::{Camera, UndistortLut};
 pub use error::{Error, Result};
