@@ -8,6 +8,7 @@ mod errors;
 mod field;
 mod tracker;
 mod sim;
+mod model;
 
 #[pymodule]
 fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -17,5 +18,6 @@ fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     field::register(m)?;
     tracker::register(m)?;
     sim::register(m)?;
+    model::register(m)?;
     Ok(())
 }
