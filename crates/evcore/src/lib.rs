@@ -10,6 +10,7 @@ pub mod camera;
 pub mod error;
 pub mod event;
 pub mod image;
+pub mod io;
 pub mod rng;
 pub mod se3;
 

@@ -5,11 +5,13 @@ use pyo3::prelude::*;
 
 mod camera;
 mod errors;
+mod io;
 
 #[pymodule]
 fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("DecodeError", m.py().get_type::<errors::DecodeError>())?;
     camera::register(m)?;
+    io::register(m)?;
     Ok(())
 }
