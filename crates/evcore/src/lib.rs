@@ -11,6 +11,7 @@ pub mod error;
 pub mod event;
 pub mod field;
 pub mod image;
+pub mod io;
 pub mod mesh;
 pub mod pointset;
 pub mod render;

@@ -9,6 +9,7 @@ mod field;
 mod tracker;
 mod sim;
 mod model;
+mod io;
 
 #[pymodule]
 fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -19,5 +20,6 @@ fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     tracker::register(m)?;
     sim::register(m)?;
     model::register(m)?;
+    io::register(m)?;
     Ok(())
 }

@@ -1,0 +1,148 @@
+//! EVT 2.0: 32-bit little-endian words, type in bits 31..28.
+//! CD_OFF 0x0 / CD_ON 0x1 carry ts[27:22] (low 6 µs bits), x[21:11], y[10:0];
+//! TIME_HIGH 0x8 carries bits 33..6 of the time. Everything else is counted and ignored.
+
+use super::{check_geometry, reserve, unwrap_time_base, Carry, DecodeStats, MAX_SENSOR_SIDE_PX};
+use crate::error::{Error, Result};
+use crate::EventBatch;
+
+const CD_OFF: u32 = 0x0;
+const CD_ON: u32 = 0x1;
+const TIME_HIGH: u32 = 0x8;
+/// The 34-bit time counter wraps after 2^34 µs (about 4 h 46 min).
+const PERIOD_US: i64 = 1 << 34;
+/// OpenEB's tolerance: a drop within ten TIME_HIGH steps of a full period is still a wrap.
+const WRAP_GUARD_US: i64 = (10 << 6) + (1 << 6);
+
+/// Streaming EVT 2.0 decoder (see the module docs of [`crate::io`] for the shared rules).
+#[derive(Debug, Clone)]
+pub struct Evt2Decoder {
+    width: u32,
+    height: u32,
+    carry: Carry<4>,
+    /// Time base in µs with wraps applied; `None` until the first TIME_HIGH.
+    time_high_us: Option<i64>,
+    stats: DecodeStats,
+    failed: Option<Error>,
+}
+
+impl Default for Evt2Decoder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Evt2Decoder {
+    /// A decoder accepting the full 11-bit address range (2048×2048 px).
+    pub fn new() -> Self {
+        Self {
+            width: MAX_SENSOR_SIDE_PX,
+            height: MAX_SENSOR_SIDE_PX,
+            carry: Carry::new(),
+            time_high_us: None,
+            stats: DecodeStats::default(),
+            failed: None,
+        }
+    }
+
+    /// A decoder that rejects events outside `width`×`height` px.
+    pub fn with_geometry(width: u32, height: u32) -> Result<Self> {
+        let (width, height) = check_geometry(width, height)?;
+        Ok(Self {
+            width,
+            height,
+            ..Self::new()
+        })
+    }
+
+    pub fn stats(&self) -> &DecodeStats {
+        &self.stats
+    }
+
+    /// Bytes of an incomplete word held back for the next call.
+    pub fn pending_bytes(&self) -> usize {
+        self.carry.len
+    }
+
+    /// Decodes the next chunk of the stream, appending its events to `out`.
+    pub fn decode(&mut self, bytes: &[u8], out: &mut EventBatch) -> Result<()> {
+        if let Some(e) = &self.failed {
+            return Err(e.clone());
+        }
+        let (first, whole) = self.carry.split(bytes);
+        let mut res = Ok(());
+        if let Some(w) = first {
+            res = self.decode_words(&w, out);
+        }
+        if res.is_ok() {
+            res = self.decode_words(whole, out);
+        }
+        if let Err(e) = &res {
+            self.failed = Some(e.clone());
+        }
+        res
+    }
+
+    fn decode_words(&mut self, bytes: &[u8], out: &mut EventBatch) -> Result<()> {
+        reserve(out, bytes.len() / 4);
+        let mut words = bytes
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]));
+        let mut base = match self.time_high_us {
+            Some(b) => b,
+            None => {
+                let mut found = None;
+                for w in words.by_ref() {
+                    self.stats.words_by_type[(w >> 28) as usize] += 1;
+                    if w >> 28 == TIME_HIGH {
+                        found = Some(i64::from(w & 0x0fff_ffff) << 6);
+                        break;
+                    }
+                    self.stats.skipped_before_time_high += 1;
+                }
+                match found {
+                    Some(b) => b,
+                    None => return Ok(()),
+                }
+            }
+        };
+        self.time_high_us = Some(base);
+        let (width, height) = (self.width, self.height);
+        for w in words {
+            let ty = w >> 28;
+            self.stats.words_by_type[ty as usize] += 1;
+            match ty {
+                CD_OFF | CD_ON => {
+                    let x = (w >> 11) & 0x7ff;
+                    let y = w & 0x7ff;
+                    if x >= width || y >= height {
+                        self.time_high_us = Some(base);
+                        return Err(Error::Decode(format!(
+                            "EVT2 event at ({x}, {y}) lies outside the {width}x{height} sensor (word {})",
+                            self.stats.words() - 1
+                        )));
+                    }
+                    out.push(
+                        x as u16,
+                        y as u16,
+                        ty as i16,
+                        base + i64::from((w >> 22) & 0x3f),
+                    );
+                }
+                TIME_HIGH => {
+                    let raw = i64::from(w & 0x0fff_ffff) << 6;
+                    base = unwrap_time_base(
+                        base,
+                        raw,
+                        &mut self.stats.time_loops,
+                        PERIOD_US,
+                        WRAP_GUARD_US,
+                    );
+                }
+                _ => {}
+            }
+        }
+        self.time_high_us = Some(base);
+        Ok(())
+    }
+}

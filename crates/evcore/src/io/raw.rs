@@ -1,0 +1,168 @@
+//! Reading a RAW file (header + EVT 2.0/3.0 words) in slices of n events or of time.
+
+use super::{DecodeStats, Decoder, Format, RawHeader};
+use crate::error::{Error, Result};
+use crate::EventBatch;
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read};
+use std::path::Path;
+
+/// Bytes read and decoded at a time: big enough that per-call overhead vanishes, small enough
+/// that decoded events stay in cache-sized batches.
+const BLOCK_BYTES: usize = 256 * 1024;
+
+/// A RAW event file reader over any byte source.
+///
+/// Events come out in stream order. Errors are sticky: after a decode error or a stream that
+/// ends inside a word, every later read returns that error.
+#[derive(Debug)]
+pub struct RawReader<R: Read = File> {
+    input: BufReader<R>,
+    header: RawHeader,
+    decoder: Decoder,
+    /// Decoded events not yet handed out start at `pos`.
+    buf: EventBatch,
+    pos: usize,
+    eof: bool,
+    failed: Option<Error>,
+}
+
+impl RawReader<File> {
+    /// Opens a RAW file and parses its header.
+    pub fn open(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let file = File::open(path)
+            .map_err(|e| Error::Decode(format!("cannot open {}: {e}", path.display())))?;
+        Self::new(file)
+    }
+}
+
+impl<R: Read> RawReader<R> {
+    /// Parses the header from the start of `input`.
+    pub fn new(input: R) -> Result<Self> {
+        let mut input = BufReader::with_capacity(BLOCK_BYTES, input);
+        let header = RawHeader::read_from(&mut input)?;
+        let decoder = Decoder::for_sensor(header.format, header.width, header.height)?;
+        Ok(Self {
+            input,
+            header,
+            decoder,
+            buf: EventBatch::default(),
+            pos: 0,
+            eof: false,
+            failed: None,
+        })
+    }
+
+    pub fn header(&self) -> &RawHeader {
+        &self.header
+    }
+
+    /// Sensor width in pixels.
+    pub fn width(&self) -> u32 {
+        self.header.width
+    }
+
+    /// Sensor height in pixels.
+    pub fn height(&self) -> u32 {
+        self.header.height
+    }
+
+    pub fn format(&self) -> Format {
+        self.header.format
+    }
+
+    /// Counters of the words decoded so far.
+    pub fn stats(&self) -> &DecodeStats {
+        self.decoder.stats()
+    }
+
+    /// Appends the next `n` events to `out` (fewer at the end of the stream). Returns false,
+    /// appending nothing, once the stream is exhausted.
+    pub fn read_n_events(&mut self, n: usize, out: &mut EventBatch) -> Result<bool> {
+        self.check()?;
+        while self.buf.len() - self.pos < n && self.fill()? {}
+        let end = self.pos + n.min(self.buf.len() - self.pos);
+        Ok(self.hand_out(end, out))
+    }
+
+    /// Appends the events before the first one at or after `t_us` to `out`, so consecutive calls
+    /// with growing `t_us` slice the stream by time. Events that step back in time after that
+    /// cut belong to the next slice: stream order is never changed. Returns false, appending
+    /// nothing, once the stream is exhausted; an empty slice inside the stream returns true.
+    pub fn read_until_t(&mut self, t_us: i64, out: &mut EventBatch) -> Result<bool> {
+        self.check()?;
+        let mut scanned = 0;
+        let end = loop {
+            let from = self.pos + scanned;
+            if let Some(k) = self.buf.t_us[from..].iter().position(|&t| t >= t_us) {
+                break from + k;
+            }
+            scanned = self.buf.len() - self.pos;
+            if !self.fill()? {
+                break self.buf.len();
+            }
+        };
+        Ok(self.hand_out(end, out))
+    }
+
+    fn check(&self) -> Result<()> {
+        match &self.failed {
+            Some(e) => Err(e.clone()),
+            None => Ok(()),
+        }
+    }
+
+    /// Moves buffered events `pos..end` to `out`; false when nothing moved and nothing is left.
+    fn hand_out(&mut self, end: usize, out: &mut EventBatch) -> bool {
+        let (a, b) = (self.pos, end);
+        out.x.extend_from_slice(&self.buf.x[a..b]);
+        out.y.extend_from_slice(&self.buf.y[a..b]);
+        out.p.extend_from_slice(&self.buf.p[a..b]);
+        out.t_us.extend_from_slice(&self.buf.t_us[a..b]);
+        self.pos = end;
+        end > a || !(self.eof && self.pos == self.buf.len())
+    }
+
+    /// Decodes the next block of input into the buffer; false at the end of the stream.
+    fn fill(&mut self) -> Result<bool> {
+        if self.eof {
+            return Ok(false);
+        }
+        if self.pos > 0 {
+            let p = self.pos;
+            self.buf.x.drain(..p);
+            self.buf.y.drain(..p);
+            self.buf.p.drain(..p);
+            self.buf.t_us.drain(..p);
+            self.pos = 0;
+        }
+        let res = self.fill_block();
+        if let Err(e) = &res {
+            self.failed = Some(e.clone());
+        }
+        res
+    }
+
+    fn fill_block(&mut self) -> Result<bool> {
+        let chunk = self
+            .input
+            .fill_buf()
+            .map_err(|e| Error::Decode(format!("reading RAW data: {e}")))?;
+        if chunk.is_empty() {
+            self.eof = true;
+            let stray = self.decoder.pending_bytes();
+            if stray > 0 {
+                return Err(Error::Decode(format!(
+                    "{} stream ends inside a word ({stray} stray bytes): the file is truncated",
+                    self.header.format
+                )));
+            }
+            return Ok(false);
+        }
+        let n = chunk.len();
+        self.decoder.decode(chunk, &mut self.buf)?;
+        self.input.consume(n);
+        Ok(true)
+    }
+}

@@ -1,0 +1,383 @@
+//! Decoders and RawReader against the real Prophesee recordings in shared/event-samples, plus
+//! property tests: no byte input panics, and any chunking decodes like one call.
+//!
+//! The recordings' expected values come from independent decoders (see the samples' README);
+//! the bit-exact SHA3 digests are asserted by tests/test_io.py. `PROPTEST_CASES` sets the
+//! number of property cases (default 256 per property here; raise it for a long run).
+
+use evcore::io::{Decoder, Evt2Decoder, Evt3Decoder, Format, RawReader};
+use evcore::{Error, EventBatch};
+use proptest::prelude::*;
+use std::path::PathBuf;
+
+fn samples_dir() -> PathBuf {
+    match std::env::var_os("EVSERVO_SAMPLES") {
+        Some(d) => PathBuf::from(d),
+        None => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/event-samples"),
+    }
+}
+
+/// The sample's bytes, or `None` (with a visible note) when the samples are not installed.
+fn sample(name: &str) -> Option<Vec<u8>> {
+    let path = samples_dir().join(name);
+    match std::fs::read(&path) {
+        Ok(b) => Some(b),
+        Err(e) => {
+            eprintln!(
+                "SKIPPED: sample {} unavailable ({e}); set EVSERVO_SAMPLES",
+                path.display()
+            );
+            None
+        }
+    }
+}
+
+const EVT3: &str = "prophesee_gen41_evt3_1280x720.raw";
+const EVT2_A: &str = "prophesee_gen3_evt2_640x480_a.raw";
+const EVT2_B: &str = "prophesee_gen3_evt2_640x480_b.raw";
+
+struct Expected {
+    n: usize,
+    t_first: i64,
+    t_last: i64,
+    x_max: u16,
+    y_max: u16,
+    on: usize,
+}
+
+fn read_all(name: &str) -> Option<(EventBatch, RawReader)> {
+    sample(name)?;
+    let mut r = RawReader::open(samples_dir().join(name)).unwrap();
+    let mut all = EventBatch::default();
+    while r.read_n_events(100_000, &mut all).unwrap() {}
+    Some((all, r))
+}
+
+fn check(ev: &EventBatch, e: &Expected) {
+    assert_eq!(ev.len(), e.n);
+    assert_eq!(ev.t_us[0], e.t_first);
+    assert_eq!(*ev.t_us.last().unwrap(), e.t_last);
+    assert_eq!(*ev.x.iter().max().unwrap(), e.x_max);
+    assert_eq!(*ev.y.iter().max().unwrap(), e.y_max);
+    assert_eq!(ev.p.iter().filter(|&&p| p == 1).count(), e.on);
+    assert!(ev.p.iter().all(|&p| p == 0 || p == 1));
+}
+
+#[test]
+fn evt3_sample_matches_reference_decoders() {
+    let Some((ev, r)) = read_all(EVT3) else {
+        return;
+    };
+    assert_eq!(
+        (r.format(), r.width(), r.height()),
+        (Format::Evt3, 1280, 720)
+    );
+    check(
+        &ev,
+        &Expected {
+            n: 219_596,
+            t_first: 11_718_656,
+            t_last: 11_727_457,
+            x_max: 1279,
+            y_max: 719,
+            on: 115_532,
+        },
+    );
+    let s = r.stats();
+    assert_eq!(s.words(), 308_943);
+    let by_type: Vec<(usize, u64)> = s
+        .words_by_type
+        .iter()
+        .copied()
+        .enumerate()
+        .filter(|&(_, n)| n > 0)
+        .collect();
+    assert_eq!(
+        by_type,
+        [
+            (0x0, 59_640),
+            (0x2, 197_550),
+            (0x3, 10_527),
+            (0x4, 21_242),
+            (0x5, 10_621),
+            (0x6, 8_812),
+            (0x8, 551)
+        ]
+    );
+    // The README's trap at word 28,315: TIME_HIGH 2861 repeated, then TIME_LOW 811 and 800. That
+    // is a step back, not a 4096 µs wrap: no loop, t_last above stays 8.8 ms after t_first, and
+    // the events after it carry 2861 << 12 | 800 exactly.
+    assert_eq!(s.time_loops, 0);
+    assert!(ev.t_us.windows(2).all(|w| w[1] >= w[0]));
+    assert!(ev.t_us.contains(&((2861 << 12) | 800)));
+}
+
+#[test]
+fn evt2_samples_match_reference_decoders() {
+    if let Some((ev, r)) = read_all(EVT2_A) {
+        assert_eq!(
+            (r.format(), r.width(), r.height()),
+            (Format::Evt2, 640, 480)
+        );
+        check(
+            &ev,
+            &Expected {
+                n: 521_252,
+                t_first: 913_716_224,
+                t_last: 913_812_095,
+                x_max: 639,
+                y_max: 479,
+                on: 185_861,
+            },
+        );
+    }
+    if let Some((ev, _)) = read_all(EVT2_B) {
+        check(
+            &ev,
+            &Expected {
+                n: 539_481,
+                t_first: 1_317_888,
+                t_last: 1_367_888,
+                x_max: 599,
+                y_max: 475,
+                on: 367_855,
+            },
+        );
+    }
+}
+
+#[test]
+fn time_slices_concatenate_to_the_stream() {
+    let Some((all, _)) = read_all(EVT3) else {
+        return;
+    };
+    let mut r = RawReader::open(samples_dir().join(EVT3)).unwrap();
+    let mut joined = EventBatch::default();
+    let mut t = all.t_us[0];
+    let mut slices = 0;
+    loop {
+        t += 1000;
+        let mut slice = EventBatch::default();
+        if !r.read_until_t(t, &mut slice).unwrap() {
+            break;
+        }
+        // Every slice ends before the cut; steps back in time may put earlier times at a slice start.
+        assert!(slice.t_us.last().is_none_or(|&l| l < t));
+        joined.extend_from(&slice);
+        slices += 1;
+    }
+    assert_eq!(slices, 9, "8.8 ms in 1 ms slices");
+    assert_eq!(joined, all);
+    assert!(!r.read_n_events(10, &mut joined).unwrap());
+}
+
+#[test]
+fn truncated_file_inside_a_word_is_an_error() {
+    let Some(bytes) = sample(EVT2_B) else { return };
+    let cut = &bytes[..bytes.len() - 3];
+    let mut r = RawReader::new(cut).unwrap();
+    let mut out = EventBatch::default();
+    let err = loop {
+        match r.read_n_events(50_000, &mut out) {
+            Ok(true) => {}
+            Ok(false) => panic!("truncation went unnoticed"),
+            Err(e) => break e,
+        }
+    };
+    assert!(
+        matches!(err, Error::Decode(ref m) if m.contains("truncated")),
+        "{err}"
+    );
+    // Sticky: the reader does not pretend to have recovered.
+    assert_eq!(r.read_n_events(1, &mut out).unwrap_err(), err);
+}
+
+/// Header length of a sample: data starts after the header lines.
+fn data_of(bytes: &[u8]) -> &[u8] {
+    let mut r = std::io::BufReader::new(bytes);
+    let h = evcore::io::RawHeader::read_from(&mut r).unwrap();
+    &bytes[h.len_bytes..]
+}
+
+#[test]
+fn events_before_the_first_time_high_are_skipped() {
+    // EVT3: ADDR_Y 5, ADDR_X 7 (no time yet), TIME_HIGH 1, TIME_LOW 3, ADDR_X 9 ON.
+    let words: [u16; 5] = [0x0005, 0x2007, 0x8001, 0x6003, 0x2809];
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+    let mut d = Evt3Decoder::new();
+    let mut out = EventBatch::default();
+    d.decode(&bytes, &mut out).unwrap();
+    // The ADDR_Y before TIME_HIGH is dropped too, so y is still 0.
+    assert_eq!(
+        out,
+        EventBatch::from_columns(vec![9], vec![0], vec![1], vec![4096 + 3]).unwrap()
+    );
+    assert_eq!(d.stats().skipped_before_time_high, 2);
+}
+
+#[test]
+fn evt3_vectors_expand_and_advance_the_base() {
+    // TIME_HIGH 2, TIME_LOW 5, ADDR_Y 10, VECT_BASE_X 100 OFF, VECT_12 bits {0, 11}, VECT_8 bit 7.
+    let words: [u16; 6] = [0x8002, 0x6005, 0x000a, 0x3064, 0x4801, 0x5080];
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+    let mut out = EventBatch::default();
+    Evt3Decoder::new().decode(&bytes, &mut out).unwrap();
+    assert_eq!(out.x, [100, 111, 119]);
+    assert_eq!(out.y, [10, 10, 10]);
+    assert_eq!(out.p, [0, 0, 0]);
+    assert_eq!(out.t_us, [8197; 3]);
+}
+
+#[test]
+fn evt3_time_wraps_once_per_period() {
+    // TIME_HIGH 0xfff, TIME_LOW 1, ADDR_X 1; TIME_HIGH 0 (wrap), ADDR_X 2; TIME_HIGH 0xffe (jitter back, not a wrap).
+    let words: [u16; 8] = [
+        0x8fff, 0x6001, 0x2001, 0x8000, 0x6002, 0x2002, 0x8001, 0x2003,
+    ];
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+    let mut d = Evt3Decoder::new();
+    let mut out = EventBatch::default();
+    d.decode(&bytes, &mut out).unwrap();
+    assert_eq!(out.t_us, [0xfff_001, (1 << 24) + 2, (1 << 24) + 4096 + 2]);
+    assert_eq!(d.stats().time_loops, 1);
+}
+
+#[test]
+fn evt2_time_and_fields() {
+    // TIME_HIGH 3, CD_ON ts 5 x 600 y 7, CD_OFF ts 63 x 0 y 479, TIME_HIGH 0 (a 192 µs step back, not a wrap), CD_ON.
+    let words: [u32; 5] = [
+        0x8000_0003,
+        0x1000_0000 | (5 << 22) | (600 << 11) | 7,
+        (63 << 22) | 479,
+        0x8000_0000,
+        0x1000_0000,
+    ];
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+    let mut d = Evt2Decoder::with_geometry(640, 480).unwrap();
+    let mut out = EventBatch::default();
+    d.decode(&bytes, &mut out).unwrap();
+    assert_eq!(
+        out,
+        EventBatch::from_columns(
+            vec![600, 0, 0],
+            vec![7, 479, 0],
+            vec![1, 0, 1],
+            vec![197, 255, 0]
+        )
+        .unwrap()
+    );
+    assert_eq!(d.stats().time_loops, 0);
+}
+
+#[test]
+fn out_of_sensor_events_are_sticky_decode_errors() {
+    let ok = 0x1000_0000u32 | (639 << 11) | 479;
+    let bad = 0x1000_0000u32 | (640 << 11);
+    let bytes: Vec<u8> = [0x8000_0001u32, ok, bad, ok]
+        .iter()
+        .flat_map(|w| w.to_le_bytes())
+        .collect();
+    let mut d = Evt2Decoder::with_geometry(640, 480).unwrap();
+    let mut out = EventBatch::default();
+    let err = d.decode(&bytes, &mut out).unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "decode error: EVT2 event at (640, 0) lies outside the 640x480 sensor (word 2)"
+    );
+    assert_eq!(out.len(), 1, "events before the bad word are kept");
+    assert_eq!(d.decode(&bytes[..4], &mut out).unwrap_err(), err);
+
+    // EVT3 vector reaching past the right edge: base 1276, bit 4 → x 1280.
+    let words: [u16; 4] = [0x8001, 0x0000, 0x34fc, 0x4011];
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+    let mut d = Evt3Decoder::with_geometry(1280, 720).unwrap();
+    let err = d.decode(&bytes, &mut EventBatch::default()).unwrap_err();
+    assert!(err.to_string().contains("(1280, 0)"), "{err}");
+}
+
+fn decode_whole(format: Format, bytes: &[u8]) -> (EventBatch, Result<(), Error>) {
+    let mut d = match format {
+        Format::Evt2 => Decoder::Evt2(Evt2Decoder::new()),
+        Format::Evt3 => Decoder::Evt3(Evt3Decoder::new()),
+    };
+    let mut out = EventBatch::default();
+    let res = d.decode(bytes, &mut out);
+    (out, res)
+}
+
+/// Feeds `bytes` in pieces cut at `cuts` (sorted, possibly repeated), stopping at the first error.
+fn decode_chunked(format: Format, bytes: &[u8], cuts: &[usize]) -> (EventBatch, Result<(), Error>) {
+    let mut d = match format {
+        Format::Evt2 => Decoder::Evt2(Evt2Decoder::new()),
+        Format::Evt3 => Decoder::Evt3(Evt3Decoder::new()),
+    };
+    let mut out = EventBatch::default();
+    let mut start = 0;
+    for &c in cuts.iter().chain(std::iter::once(&bytes.len())) {
+        let c = c.clamp(start, bytes.len());
+        if let Err(e) = d.decode(&bytes[start..c], &mut out) {
+            return (out, Err(e));
+        }
+        start = c;
+    }
+    (out, Ok(()))
+}
+
+fn format_strategy() -> impl Strategy<Value = Format> {
+    prop_oneof![Just(Format::Evt2), Just(Format::Evt3)]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(
+        std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(256)
+    ))]
+
+    #[test]
+    fn random_bytes_never_panic_and_chunking_is_invisible(
+        format in format_strategy(),
+        bytes in prop::collection::vec(any::<u8>(), 0..4096),
+        mut cuts in prop::collection::vec(0usize..4096, 0..16),
+    ) {
+        cuts.sort_unstable();
+        let whole = decode_whole(format, &bytes);
+        prop_assert_eq!(decode_chunked(format, &bytes, &cuts), whole);
+    }
+
+    #[test]
+    fn real_files_split_or_truncated_decode_like_one_shot(
+        which in 0usize..3,
+        keep in 0.0f64..=1.0,
+        mut cuts in prop::collection::vec(0usize..3_000_000, 0..12),
+    ) {
+        let (name, format) = [(EVT3, Format::Evt3), (EVT2_A, Format::Evt2), (EVT2_B, Format::Evt2)][which];
+        let Some(bytes) = sample(name) else { return Ok(()) };
+        let data = data_of(&bytes);
+        let data = &data[..(data.len() as f64 * keep) as usize];
+        cuts.sort_unstable();
+        let whole = decode_whole(format, data);
+        prop_assert!(whole.1.is_ok());
+        prop_assert_eq!(decode_chunked(format, data, &cuts), whole);
+    }
+
+    #[test]
+    fn reader_survives_any_file(
+        header in prop::sample::select(vec![
+            &b"% evt 3.0\n% geometry 64x32\n"[..],
+            b"% format EVT2;width=64;height=32\n% end\n",
+            b"% evt 2.0\n",
+            b"",
+        ]),
+        body in prop::collection::vec(any::<u8>(), 0..2048),
+        n in 1usize..500,
+    ) {
+        let mut file = header.to_vec();
+        file.extend_from_slice(&body);
+        if let Ok(mut r) = RawReader::new(&file[..]) {
+            let mut out = EventBatch::default();
+            // Each successful call either appends or ends the stream, so this terminates.
+            while let Ok(true) = r.read_n_events(n, &mut out) {}
+            prop_assert!(out.x.iter().all(|&x| u32::from(x) < r.width()));
+            prop_assert!(out.y.iter().all(|&y| u32::from(y) < r.height()));
+        }
+    }
+}

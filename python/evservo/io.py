@@ -1,0 +1,310 @@
+"""Event files: read, slice and write change-detection events as ``EVENT_CD`` arrays.
+
+Events are numpy structured arrays of dtype :data:`EVENT_CD`, the layout of OpenEB's ``EventCD``:
+``x`` u16 and ``y`` u16 (sensor pixels), ``p`` i16 (0 = OFF, 1 = ON), ``t`` i64 (µs).
+
+Formats, chosen by file extension:
+
+``.raw``
+    Prophesee RAW, EVT 2.0 or EVT 3.0, decoded by the Rust core (``evservo._evcore.RawReader``)
+    with the GIL released. Geometry comes from the header. Read only.
+``.npz`` (ours)
+    ``events``: an EVENT_CD array; ``width``, ``height``: 0-d integer arrays. Written compressed.
+``.npy``
+    A bare EVENT_CD array. The sensor size is not stored: readers infer it as max(x)+1 by
+    max(y)+1 and :func:`info` reports ``geometry_inferred=True``.
+``.h5`` / ``.hdf5``, our layout
+    Group ``/events`` with 1-D datasets ``x`` (u16), ``y`` (u16), ``p`` (i16), ``t`` (i64, µs), all
+    gzip-compressed and chunked, and integer attributes ``width`` and ``height`` on ``/events``.
+``.h5`` / ``.hdf5``, Metavision layout (read only)
+    Compound dataset ``/CD/events`` with fields x, y, p, t. Geometry from the root attribute
+    ``geometry`` ("WxH") or ``width``/``height``, else inferred as for ``.npy``. Files compressed
+    with Prophesee's ECF codec (HDF5 filter 0x8ECF) need the hdf5-ecf plugin on
+    ``HDF5_PLUGIN_PATH``; without it reading raises :class:`DecodeError` naming the codec.
+
+Bad input raises ``FileNotFoundError`` (missing file), :class:`DecodeError` (a ``ValueError``;
+corrupt or truncated content) or ``ValueError`` (unsupported extension or arguments).
+"""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from evservo._evcore import DecodeError, RawReader
+
+__all__ = ["EVENT_CD", "DecodeError", "info", "open_events", "read_events", "write_events"]
+
+EVENT_CD = np.dtype(
+    {
+        "names": ["x", "y", "p", "t"],
+        "formats": ["<u2", "<u2", "<i2", "<i8"],
+        "offsets": [0, 2, 4, 8],
+        "itemsize": 16,
+    }
+)
+
+#: HDF5 filter id of Prophesee's ECF codec used by Metavision HDF5 files.
+ECF_FILTER_ID = 0x8ECF
+
+_RAW_BLOCK_EVENTS = 1 << 20
+_H5_SUFFIXES = (".h5", ".hdf5")
+_SUFFIXES = (".raw", ".npz", ".npy", *_H5_SUFFIXES)
+
+
+def _checked_path(path: str | os.PathLike) -> tuple[Path, str]:
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in _SUFFIXES:
+        raise ValueError(
+            f"unsupported event file extension {suffix!r} for {p} (supported: {', '.join(_SUFFIXES)})"
+        )
+    if not p.is_file():
+        raise FileNotFoundError(f"no such event file: {p}")
+    return p, suffix
+
+
+def _columns_to_cd(cols: dict) -> np.ndarray:
+    out = np.empty(len(cols["t"]), dtype=EVENT_CD)
+    for name in EVENT_CD.names:
+        out[name] = cols[name]
+    return out
+
+
+def _as_cd(events: np.ndarray) -> np.ndarray:
+    """Any structured array with fields x, y, p, t as an EVENT_CD array (copied if needed)."""
+    names = getattr(events.dtype, "names", None) or ()
+    missing = [n for n in EVENT_CD.names if n not in names]
+    if events.ndim != 1 or missing:
+        raise ValueError(f"events must be a 1-D structured array with fields x, y, p, t (missing: {missing})")
+    if events.dtype == EVENT_CD:
+        return events
+    out = np.empty(len(events), dtype=EVENT_CD)
+    for name in EVENT_CD.names:
+        out[name] = events[name]
+    return out
+
+
+def _inferred_geometry(events: np.ndarray) -> tuple[int, int]:
+    if len(events) == 0:
+        return 0, 0
+    return int(events["x"].max()) + 1, int(events["y"].max()) + 1
+
+
+def _load_npz(p: Path) -> tuple[np.ndarray, int, int]:
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            events, width, height = z["events"], int(z["width"]), int(z["height"])
+    except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+        raise DecodeError(f"{p}: corrupt or not an evservo .npz (events, width, height): {e}") from e
+    return _decoded_cd(p, events), width, height
+
+
+def _decoded_cd(p: Path, events: np.ndarray) -> np.ndarray:
+    try:
+        return _as_cd(events)
+    except ValueError as e:
+        raise DecodeError(f"{p}: {e}") from e
+
+
+def _load_npy(p: Path) -> np.ndarray:
+    try:
+        events = np.load(p, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as e:
+        raise DecodeError(f"{p}: corrupt .npy: {e}") from e
+    return _decoded_cd(p, events)
+
+
+def _check_ecf(p: Path, ds: h5py.Dataset) -> None:
+    plist = ds.id.get_create_plist()
+    for i in range(plist.get_nfilters()):
+        if plist.get_filter(i)[0] == ECF_FILTER_ID and not h5py.h5z.filter_avail(ECF_FILTER_ID):
+            raise DecodeError(
+                f"{p}: {ds.name} is compressed with Prophesee's ECF codec (HDF5 filter 0x8ECF), which is not "
+                "available: install the hdf5-ecf plugin (e.g. Ubuntu package hdf5-plugin-ecf) and point "
+                "HDF5_PLUGIN_PATH at it"
+            )
+
+
+def _load_h5(p: Path) -> tuple[np.ndarray, int, int, bool, str]:
+    """(events, width, height, geometry_inferred, layout name)."""
+    try:
+        f = h5py.File(p, "r")
+    except OSError as e:
+        raise DecodeError(f"{p}: not a readable HDF5 file: {e}") from e
+    try:
+        with f:
+            if "events" in f and isinstance(f["events"], h5py.Group):
+                g = f["events"]
+                events = _columns_to_cd({n: g[n][()] for n in EVENT_CD.names})
+                return events, int(g.attrs["width"]), int(g.attrs["height"]), False, "hdf5"
+            if "CD/events" in f:
+                ds = f["CD/events"]
+                _check_ecf(p, ds)
+                events = _decoded_cd(p, ds[()])
+                geometry = f.attrs.get("geometry")
+                if isinstance(geometry, bytes):
+                    geometry = geometry.decode()
+                if isinstance(geometry, str) and "x" in geometry:
+                    w, h = geometry.split("x", 1)
+                    return events, int(w), int(h), False, "metavision-hdf5"
+                if "width" in f.attrs and "height" in f.attrs:
+                    return events, int(f.attrs["width"]), int(f.attrs["height"]), False, "metavision-hdf5"
+                return events, *_inferred_geometry(events), True, "metavision-hdf5"
+    except DecodeError:
+        raise
+    except (KeyError, OSError, ValueError, TypeError) as e:
+        raise DecodeError(f"{p}: unreadable event HDF5: {e}") from e
+    raise DecodeError(f"{p}: HDF5 file has neither /events (evservo) nor /CD/events (Metavision)")
+
+
+def _load_array(p: Path, suffix: str) -> tuple[np.ndarray, int, int, bool, str]:
+    if suffix == ".npz":
+        return (*_load_npz(p), False, "npz")
+    if suffix == ".npy":
+        events = _load_npy(p)
+        return events, *_inferred_geometry(events), True, "npy"
+    return _load_h5(p)
+
+
+def _raw_blocks(p: Path, n: int) -> Iterator[np.ndarray]:
+    reader = RawReader(p)
+    while (cols := reader.read_n_events(n)) is not None:
+        yield _columns_to_cd(cols)
+
+
+def _raw_time_slices(p: Path, delta_t_us: int) -> Iterator[np.ndarray]:
+    reader = RawReader(p)
+    first = reader.read_n_events(1)
+    if first is None:
+        return
+    head = _columns_to_cd(first)
+    end = (int(head["t"][0]) // delta_t_us + 1) * delta_t_us
+    while (cols := reader.read_until(end)) is not None:
+        chunk = _columns_to_cd(cols)
+        if head is not None:
+            chunk = np.concatenate([head, chunk], dtype=EVENT_CD)
+            head = None
+        yield chunk
+        end += delta_t_us
+    if head is not None:
+        yield head
+
+
+def _array_time_slices(events: np.ndarray, delta_t_us: int) -> Iterator[np.ndarray]:
+    if len(events) == 0:
+        return
+    # The running maximum turns "first event at or after the boundary, in stream order" into a
+    # sorted search, also where time steps back; stream order is kept, as in the RAW reader.
+    running = np.maximum.accumulate(events["t"])
+    start = 0
+    end = (int(events["t"][0]) // delta_t_us + 1) * delta_t_us
+    while start < len(events):
+        stop = int(np.searchsorted(running, end, side="left"))
+        yield events[start:stop]
+        start = stop
+        end += delta_t_us
+
+
+def open_events(
+    path: str | os.PathLike, delta_t_us: int | None = None, n_events: int | None = None
+) -> Iterator[np.ndarray]:
+    """Iterate over an event file in EVENT_CD slices, like OpenEB's ``EventsIterator``.
+
+    Give at most one of ``delta_t_us`` (time slices, default 10 000 µs) and ``n_events`` (slices
+    of that many events, the last one shorter). Time slices lie on a grid of multiples of
+    ``delta_t_us`` starting with the one holding the first event; each slice ends before the first
+    event at or after its end, in stream order, and slices without events inside the recording
+    are yielded empty. The slices concatenate to :func:`read_events`.
+    """
+    if delta_t_us is not None and n_events is not None:
+        raise ValueError("give only one of delta_t_us and n_events")
+    if n_events is not None:
+        if n_events < 1:
+            raise ValueError(f"n_events must be >= 1, got {n_events}")
+    else:
+        delta_t_us = 10_000 if delta_t_us is None else delta_t_us
+        if delta_t_us < 1:
+            raise ValueError(f"delta_t_us must be >= 1, got {delta_t_us}")
+    p, suffix = _checked_path(path)
+    if suffix == ".raw":
+        if n_events is not None:
+            return _raw_blocks(p, n_events)
+        return _raw_time_slices(p, delta_t_us)
+    events = _load_array(p, suffix)[0]
+    if n_events is not None:
+        return (events[i : i + n_events] for i in range(0, len(events), n_events))
+    return _array_time_slices(events, delta_t_us)
+
+
+def read_events(path: str | os.PathLike) -> np.ndarray:
+    """All events of a file as one EVENT_CD array, in stream order."""
+    p, suffix = _checked_path(path)
+    if suffix == ".raw":
+        blocks = list(_raw_blocks(p, _RAW_BLOCK_EVENTS))
+        # numpy would otherwise drop EVENT_CD's padding and return a packed 14-byte dtype.
+        return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
+    return _load_array(p, suffix)[0]
+
+
+def info(path: str | os.PathLike) -> dict:
+    """Format, sensor size and extent of an event file (RAW files are decoded once to count).
+
+    Keys: ``format`` ("EVT2", "EVT3", "npz", "npy", "hdf5" or "metavision-hdf5"), ``width``,
+    ``height`` (pixels), ``n_events``, ``t_first_us``, ``t_last_us`` (None when empty) and
+    ``geometry_inferred`` (True when the size was taken as max+1 of the coordinates).
+    """
+    p, suffix = _checked_path(path)
+    if suffix == ".raw":
+        reader = RawReader(p)
+        n, t_first, t_last = 0, None, None
+        while (cols := reader.read_n_events(_RAW_BLOCK_EVENTS)) is not None:
+            if len(cols["t"]):
+                t_first = int(cols["t"][0]) if t_first is None else t_first
+                t_last = int(cols["t"][-1])
+                n += len(cols["t"])
+        return dict(
+            format=reader.format, width=reader.width, height=reader.height, n_events=n,
+            t_first_us=t_first, t_last_us=t_last, geometry_inferred=False,
+        )  # fmt: skip
+    events, width, height, inferred, layout = _load_array(p, suffix)
+    empty = len(events) == 0
+    return dict(
+        format=layout, width=width, height=height, n_events=len(events),
+        t_first_us=None if empty else int(events["t"][0]), t_last_us=None if empty else int(events["t"][-1]),
+        geometry_inferred=inferred,
+    )  # fmt: skip
+
+
+def write_events(path: str | os.PathLike, events: np.ndarray, width: int, height: int) -> None:
+    """Write events to ``.npz``, ``.npy`` or ``.h5``/``.hdf5`` (our layouts, see the module doc).
+
+    Every event must lie on the ``width`` x ``height`` sensor. ``.npy`` does not store the size.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in (".npz", ".npy", *_H5_SUFFIXES):
+        raise ValueError(f"cannot write {suffix!r} event files (supported: .npz, .npy, .h5, .hdf5)")
+    events = _as_cd(np.asarray(events))
+    if width < 1 or height < 1:
+        raise ValueError(f"sensor size must be positive, got {width}x{height}")
+    if len(events) and (int(events["x"].max()) >= width or int(events["y"].max()) >= height):
+        raise ValueError(f"events reach beyond the {width}x{height} sensor")
+    if suffix == ".npz":
+        np.savez_compressed(p, events=events, width=np.int64(width), height=np.int64(height))
+    elif suffix == ".npy":
+        np.save(p, events)
+    else:
+        with h5py.File(p, "w") as f:
+            g = f.create_group("events")
+            g.attrs["width"] = int(width)
+            g.attrs["height"] = int(height)
+            # HDF5 cannot chunk (hence compress) an empty dataset.
+            options = {"compression": "gzip"} if len(events) else {}
+            for name in EVENT_CD.names:
+                g.create_dataset(name, data=events[name], **options)
