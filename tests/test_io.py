@@ -7,8 +7,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from evservo import io
 from evservo._evcore import DecodeError, RawReader
+
+from evservo import io
 
 SAMPLES = Path(os.environ.get("EVSERVO_SAMPLES", Path(__file__).parents[2] / "shared/event-samples"))
 

@@ -2,9 +2,10 @@ import cv2
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial.transform import Rotation
+
 from evservo import _evcore as ec
 from evservo import models
-from scipy.spatial.transform import Rotation
 
 CAM = ec.Camera.imx636().rectified()
 

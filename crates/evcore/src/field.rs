@@ -211,17 +211,19 @@ impl FieldLevel {
     fn cell(&self, u: f32, v: f32) -> Cell {
         let x = u - self.roi.x0 as f32;
         let y = v - self.roi.y0 as f32;
-        let (fx, fy) = (x.floor(), y.floor());
         let (w, h) = (self.roi.width as f32, self.roi.height as f32);
-        // Written so that NaN fails every comparison and lands in `Outside`.
-        if fx >= 0.0 && fy >= 0.0 && fx < w - 1.0 && fy < h - 1.0 {
-            let i = fy as usize * self.roi.width as usize + fx as usize;
+        // Written so that NaN fails every comparison and lands in `Outside`. On the fast path the
+        // coordinates are non-negative, so truncation is the floor; `f32::floor` is a libm call on
+        // baseline x86-64 and dominated the cost of a sample.
+        if x >= 0.0 && y >= 0.0 && x < w - 1.0 && y < h - 1.0 {
+            let (ix, iy) = (x as usize, y as usize);
             Cell::Interior {
-                i,
-                ax: x - fx,
-                ay: y - fy,
+                i: iy * self.roi.width as usize + ix,
+                ax: x - ix as f32,
+                ay: y - iy as f32,
             }
-        } else if fx >= -1.0 && fy >= -1.0 && fx < w && fy < h {
+        } else if x >= -1.0 && y >= -1.0 && x < w && y < h {
+            let (fx, fy) = (x.floor(), y.floor());
             Cell::Border {
                 x: fx as i64,
                 y: fy as i64,

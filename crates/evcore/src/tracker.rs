@@ -36,9 +36,12 @@ pub struct TrackerConfig {
     pub frontend: FrontEnd,
     pub field: FieldParams,
     pub lm: LmParams,
-    /// Margin around the projected model for the field's region of interest (full-res pixels);
-    /// covers the coarse level's basin (τ·4) plus some motion.
+    /// Margin around the projected model for the field's region of interest on LM steps
+    /// (full-res pixels); covers the coarsest level's basin (τ·4) plus some motion.
     pub roi_margin_px: f64,
+    /// The same for search steps, which only sample the full-resolution field within a pixel or two
+    /// of the projected points: τ plus a little. A smaller region is a cheaper field.
+    pub search_roi_margin_px: f64,
     /// A point within this distance of an event counts as an inlier (full-res pixels).
     pub inlier_px: f32,
     /// Below this inlier fraction the estimate is flagged lost.
@@ -56,6 +59,7 @@ impl Default for TrackerConfig {
             field: FieldParams::default(),
             lm: LmParams::default(),
             roi_margin_px: 48.0,
+            search_roi_margin_px: 16.0,
             inlier_px: 2.0,
             lost_inlier_fraction: 0.15,
             max_jump: 0.25,
@@ -111,23 +115,51 @@ pub struct TrackerCore {
 }
 
 fn check_pose(pose: &Pose) -> Result<()> {
-    let ok = pose.translation.vector.iter().all(|v| v.is_finite()) && pose.rotation.coords.iter().all(|v| v.is_finite());
+    let ok = pose.translation.vector.iter().all(|v| v.is_finite())
+        && pose.rotation.coords.iter().all(|v| v.is_finite());
     ensure(ok, || "pose contains NaN or infinite values".into())?;
-    ensure(pose.translation.z > 0.0, || format!("object must be in front of the camera (z = {} m)", pose.translation.z))
+    ensure(pose.translation.z > 0.0, || {
+        format!(
+            "object must be in front of the camera (z = {} m)",
+            pose.translation.z
+        )
+    })
 }
 
 impl TrackerCore {
     /// `camera` is the sensor's (raw, distorted); `points_o` is S* in the object frame (metres);
     /// `t_c_o` the initial pose of the object in the camera.
-    pub fn new(camera: &Camera, points_o: Vec<[f32; 3]>, t_c_o: Pose, config: TrackerConfig) -> Result<Self> {
-        ensure(points_o.len() >= 6, || format!("the point set needs at least 6 points, got {}", points_o.len()))?;
-        ensure(points_o.iter().flatten().all(|v| v.is_finite()), || "the point set contains NaN".into())?;
+    pub fn new(
+        camera: &Camera,
+        points_o: Vec<[f32; 3]>,
+        t_c_o: Pose,
+        config: TrackerConfig,
+    ) -> Result<Self> {
+        ensure(points_o.len() >= 6, || {
+            format!(
+                "the point set needs at least 6 points, got {}",
+                points_o.len()
+            )
+        })?;
+        ensure(points_o.iter().flatten().all(|v| v.is_finite()), || {
+            "the point set contains NaN".into()
+        })?;
         check_pose(&t_c_o)?;
-        let camera = Camera::new(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, camera.dist)?;
+        let camera = Camera::new(
+            camera.width,
+            camera.height,
+            camera.fx,
+            camera.fy,
+            camera.cx,
+            camera.cy,
+            camera.dist,
+        )?;
         let rect = camera.rectified();
         let surface = make_surface(&config.frontend, camera.width, camera.height)?;
         let field = DistanceField::new(config.field)?;
-        let pins = (0..config.field.levels).map(|l| Pinhole::at_level(&rect, l)).collect();
+        let pins = (0..config.field.levels)
+            .map(|l| Pinhole::at_level(&rect, l))
+            .collect();
         let schedule = Schedule::new(config.solver, config.n_search)?;
         let pivot_o = centroid(&points_o);
         let mut core = Self {
@@ -156,7 +188,9 @@ impl TrackerCore {
             pixels: Vec::new(),
             polarity: Vec::new(),
         };
-        ensure(core.roi().is_some(), || "the object does not project into the image at the initial pose".into())?;
+        ensure(core.roi(0.0).is_some(), || {
+            "the object does not project into the image at the initial pose".into()
+        })?;
         core.last.cost = core.field_max();
         Ok(core)
     }
@@ -225,11 +259,20 @@ impl TrackerCore {
     }
 
     /// Region of the rectified image around the model projected at the current pose.
-    fn roi(&self) -> Option<Roi> {
+    fn roi(&self, margin_px: f64) -> Option<Roi> {
         let rig = Rigid32::from_pose(&self.last.pose);
         let pin = self.pins[0];
-        let uv = self.points.iter().filter_map(|&x| pin.project(rig.apply(x))).map(|(u, v)| (f64::from(u), f64::from(v)));
-        Roi::around(uv, self.config.roi_margin_px, self.rect.width, self.rect.height)
+        let uv = self
+            .points
+            .iter()
+            .filter_map(|&x| pin.project(rig.apply(x)))
+            .map(|(u, v)| (f64::from(u), f64::from(v)));
+        Roi::around(
+            uv,
+            self.config.roi_margin_px,
+            self.rect.width,
+            self.rect.height,
+        )
     }
 
     /// Set the pose (e.g. re-initialisation); the front-end keeps its events.
@@ -246,35 +289,62 @@ impl TrackerCore {
         let kind = self.schedule.next_step();
         let started = Instant::now();
         let pose = self.last.pose;
-        let Some(roi) = self.roi() else {
+        let margin = match kind {
+            StepKind::Lm => self.config.roi_margin_px,
+            StepKind::Search => self.config.search_roi_margin_px,
+        };
+        let Some(roi) = self.roi(margin) else {
             self.last.lost = true;
             self.last.seq += 1;
             return self.last;
         };
-        let n_levels = if kind == StepKind::Lm { self.config.field.levels } else { 1 };
+        let n_levels = if kind == StepKind::Lm {
+            self.config.field.levels
+        } else {
+            1
+        };
         self.mask.resize(roi.area(), 0);
         self.surface.fill_mask(roi, &mut self.mask);
         let built = self.field.build(&self.mask, roi, n_levels, false);
         let new_pose = match (built, kind) {
             (Err(_), _) => pose,
             (Ok(()), StepKind::Lm) => {
-                let levels: Vec<_> = (0..n_levels).rev().map(|l| (self.field.level(l), self.pins[l as usize])).collect();
+                let levels: Vec<_> = (0..n_levels)
+                    .rev()
+                    .map(|l| (self.field.level(l), self.pins[l as usize]))
+                    .collect();
                 lm_pyramid(&levels, pose, &self.points, &self.pivot_o, &self.config.lm).pose
             }
             (Ok(()), StepKind::Search) => {
                 let deltas = axis_steps(&self.pins[0], &pose, &self.points, &self.pivot_o, 8);
-                search_step(self.field.level(0), &self.pins[0], &pose, &self.points, &self.pivot_o, &deltas).pose
+                search_step(
+                    self.field.level(0),
+                    &self.pins[0],
+                    &pose,
+                    &self.points,
+                    &self.pivot_o,
+                    &deltas,
+                )
+                .pose
             }
         };
         let (dt, dr) = crate::se3::distance(&pose, &new_pose);
-        let accepted = if check_pose(&new_pose).is_ok() && dt <= self.config.max_jump && dr <= self.config.max_jump {
+        let accepted = if check_pose(&new_pose).is_ok()
+            && dt <= self.config.max_jump
+            && dr <= self.config.max_jump
+        {
             new_pose
         } else {
             self.stats.jumps_rejected += 1;
             pose
         };
-        let quality =
-            cost_stats(self.field.level(0), &self.pins[0], &Rigid32::from_pose(&accepted), &self.points, self.config.inlier_px);
+        let quality = cost_stats(
+            self.field.level(0),
+            &self.pins[0],
+            &Rigid32::from_pose(&accepted),
+            &self.points,
+            self.config.inlier_px,
+        );
         self.last = Estimate {
             pose: accepted,
             t_us: self.last_t_us.unwrap_or(0),
@@ -311,7 +381,10 @@ impl TrackerCore {
     /// The model points projected at the current pose (rectified pixels); for overlays.
     pub fn projected_points(&self) -> Vec<(f32, f32)> {
         let rig = Rigid32::from_pose(&self.last.pose);
-        self.points.iter().filter_map(|&x| self.pins[0].project(rig.apply(x))).collect()
+        self.points
+            .iter()
+            .filter_map(|&x| self.pins[0].project(rig.apply(x)))
+            .collect()
     }
 
     /// The full-resolution field as last built, with its region (for overlays and diagnostics).
@@ -333,7 +406,10 @@ pub struct EstimateCell {
 
 impl EstimateCell {
     pub fn new(initial: &Estimate) -> Self {
-        let cell = Self { version: AtomicU64::new(0), words: std::array::from_fn(|_| AtomicU64::new(0)) };
+        let cell = Self {
+            version: AtomicU64::new(0),
+            words: std::array::from_fn(|_| AtomicU64::new(0)),
+        };
         cell.publish(initial);
         cell
     }
@@ -368,7 +444,11 @@ impl EstimateCell {
             pose: Pose::from_parts(Translation3::new(f(w[0]), f(w[1]), f(w[2])), q),
             t_us: w[7] as i64,
             seq: w[8],
-            step: if w[9] == 1 { StepKind::Lm } else { StepKind::Search },
+            step: if w[9] == 1 {
+                StepKind::Lm
+            } else {
+                StepKind::Search
+            },
             cost: f32::from_bits(w[10] as u32),
             inlier_fraction: f32::from_bits(w[11] as u32),
             n_events: w[12],
@@ -438,7 +518,13 @@ impl ThreadedTracker {
             .name("evservo-tracker".into())
             .spawn(move || run(core, &worker))
             .map_err(|e| Error::Tracking(format!("could not start the tracker thread: {e}")))?;
-        Ok(Self { shared, handle: Some(handle), width, height, last_pushed_t_us })
+        Ok(Self {
+            shared,
+            handle: Some(handle),
+            width,
+            height,
+            last_pushed_t_us,
+        })
     }
 
     /// Hand a batch to the tracker thread. Never blocks: validates, enqueues, and if the queue is
@@ -450,7 +536,9 @@ impl ThreadedTracker {
         }
         self.last_pushed_t_us = batch.last_t_us().or(self.last_pushed_t_us);
         if let Some(old) = self.shared.queue.force_push(batch) {
-            self.shared.dropped_events.fetch_add(old.len() as u64, Ordering::Relaxed);
+            self.shared
+                .dropped_events
+                .fetch_add(old.len() as u64, Ordering::Relaxed);
         }
         if let Some(h) = &self.handle {
             h.thread().unpark();
@@ -477,9 +565,14 @@ impl ThreadedTracker {
 
     fn stop_inner(&mut self) -> Result<TrackerCore> {
         self.shared.stop.store(true, Ordering::Release);
-        let handle = self.handle.take().ok_or_else(|| Error::Tracking("tracker thread already stopped".into()))?;
+        let handle = self
+            .handle
+            .take()
+            .ok_or_else(|| Error::Tracking("tracker thread already stopped".into()))?;
         handle.thread().unpark();
-        let mut core = handle.join().map_err(|_| Error::Tracking("the tracker thread panicked".into()))?;
+        let mut core = handle
+            .join()
+            .map_err(|_| Error::Tracking("the tracker thread panicked".into()))?;
         core.stats.events_dropped += self.shared.dropped_events.load(Ordering::Relaxed);
         Ok(core)
     }

@@ -6,10 +6,10 @@ use pyo3::prelude::*;
 mod camera;
 mod errors;
 mod field;
-mod tracker;
-mod sim;
-mod model;
 mod io;
+mod model;
+mod sim;
+mod tracker;
 
 #[pymodule]
 fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {

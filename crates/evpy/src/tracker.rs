@@ -82,7 +82,10 @@ fn matrix_to_py<'py>(py: Python<'py>, m: &[[f64; 4]; 4]) -> Bound<'py, PyArray2<
 pub fn matrix_from_py(m: &PyReadonlyArray2<'_, f64>) -> PyResult<evcore::Pose> {
     let a = m.as_array();
     if a.shape() != [4, 4] {
-        return Err(PyValueError::new_err(format!("a pose must be a 4x4 matrix, got shape {:?}", a.shape())));
+        return Err(PyValueError::new_err(format!(
+            "a pose must be a 4x4 matrix, got shape {:?}",
+            a.shape()
+        )));
     }
     let arr: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| a[(i, j)]));
     pose_from_matrix(&arr).map_err(to_py)
@@ -111,8 +114,13 @@ fn batch_from_columns(
     p: PyReadonlyArray1<'_, i16>,
     t: PyReadonlyArray1<'_, i64>,
 ) -> PyResult<EventBatch> {
-    EventBatch::from_columns(x.as_array().to_vec(), y.as_array().to_vec(), p.as_array().to_vec(), t.as_array().to_vec())
-        .map_err(to_py)
+    EventBatch::from_columns(
+        x.as_array().to_vec(),
+        y.as_array().to_vec(),
+        p.as_array().to_vec(),
+        t.as_array().to_vec(),
+    )
+    .map_err(to_py)
 }
 
 #[pymethods]
@@ -138,21 +146,35 @@ impl PyTracker {
         let pose = matrix_from_py(&T_c_o)?;
         let pts = points_o.as_array();
         if pts.ncols() != 3 {
-            return Err(PyValueError::new_err(format!("points_o must have shape (N, 3), got {:?}", pts.shape())));
+            return Err(PyValueError::new_err(format!(
+                "points_o must have shape (N, 3), got {:?}",
+                pts.shape()
+            )));
         }
-        let points: Vec<[f32; 3]> = pts.rows().into_iter().map(|r| [r[0] as f32, r[1] as f32, r[2] as f32]).collect();
+        let points: Vec<[f32; 3]> = pts
+            .rows()
+            .into_iter()
+            .map(|r| [r[0] as f32, r[1] as f32, r[2] as f32])
+            .collect();
         let config = TrackerConfig {
             solver: SolverMode::parse(solver).map_err(to_py)?,
             n_search,
             frontend: FrontEnd::parse(frontend).map_err(to_py)?,
             field: FieldParams { tau_px, levels },
-            lm: LmParams { max_iterations: lm_iterations, ..LmParams::default() },
+            lm: LmParams {
+                max_iterations: lm_iterations,
+                ..LmParams::default()
+            },
             roi_margin_px,
             ..TrackerConfig::default()
         };
         let cam = camera.inner;
-        let core = py.detach(move || TrackerCore::new(&cam, points, pose, config)).map_err(to_py)?;
-        Ok(Self { state: State::Sync(Box::new(core)) })
+        let core = py
+            .detach(move || TrackerCore::new(&cam, points, pose, config))
+            .map_err(to_py)?;
+        Ok(Self {
+            state: State::Sync(Box::new(core)),
+        })
     }
 
     /// Ingest one batch and run one cycle (1 LM + N search for edft+; N+1 steps otherwise).
@@ -226,14 +248,18 @@ impl PyTracker {
         let batch = batch_from_columns(x, y, p, t)?;
         match &mut self.state {
             State::Threaded(tr) => tr.push(batch).map_err(to_py),
-            _ => Err(PyRuntimeError::new_err("push() needs a running tracker: call start() first")),
+            _ => Err(PyRuntimeError::new_err(
+                "push() needs a running tracker: call start() first",
+            )),
         }
     }
 
     /// The newest estimate (threaded or not).
     fn latest(&self) -> PyResult<PyEstimate> {
         match &self.state {
-            State::Sync(core) => Ok(PyEstimate { inner: core.latest() }),
+            State::Sync(core) => Ok(PyEstimate {
+                inner: core.latest(),
+            }),
             State::Threaded(t) => Ok(PyEstimate { inner: t.latest() }),
             State::Moving => Err(PyRuntimeError::new_err("tracker is between states")),
         }
@@ -286,8 +312,16 @@ impl PyTracker {
     /// Model points projected at the current pose, (N, 2) rectified pixels.
     fn projected_points<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let pts = self.sync_core()?.projected_points();
-        Ok(numpy::ndarray::Array2::from_shape_fn((pts.len(), 2), |(i, j)| if j == 0 { pts[i].0 } else { pts[i].1 })
-            .into_pyarray(py))
+        Ok(
+            numpy::ndarray::Array2::from_shape_fn((pts.len(), 2), |(i, j)| {
+                if j == 0 {
+                    pts[i].0
+                } else {
+                    pts[i].1
+                }
+            })
+            .into_pyarray(py),
+        )
     }
 
     /// The last full-resolution field: (values (h, w) float32, (x0, y0) of its region).
@@ -315,7 +349,9 @@ impl PyTracker {
     fn sync_core(&mut self) -> PyResult<&mut TrackerCore> {
         match &mut self.state {
             State::Sync(core) => Ok(core),
-            _ => Err(PyRuntimeError::new_err("the tracker thread is running: call stop() first (or use push/latest)")),
+            _ => Err(PyRuntimeError::new_err(
+                "the tracker thread is running: call stop() first (or use push/latest)",
+            )),
         }
     }
 }

@@ -22,6 +22,8 @@ pub struct LmParams {
     pub mu_max: f64,
     /// Stop a level once the step is below this (metres and radians, ∞-norm).
     pub min_step: f64,
+    /// Stop a level once an accepted step lowers the cost by less than this fraction.
+    pub min_relative_decrease: f64,
 }
 
 impl Default for LmParams {
@@ -31,7 +33,8 @@ impl Default for LmParams {
             huber_px: 2.0,
             mu_initial: 1e-3,
             mu_max: 1e4,
-            min_step: 2e-6,
+            min_step: 1e-5,
+            min_relative_decrease: 1e-3,
         }
     }
 }
@@ -166,7 +169,9 @@ pub fn lm_level(
         if new_cost.is_finite() && new_cost < cost {
             pose = candidate;
             mu = (mu / 10.0).max(1e-9);
-            if step.amax() < params.min_step {
+            if step.amax() < params.min_step
+                || cost - new_cost < params.min_relative_decrease * cost
+            {
                 break;
             }
             let c = pose * nalgebra::Point3::from(*pivot_o);

@@ -2,7 +2,7 @@
 //! k that moves the projected model by one pixel (from the image Jacobian), each scored by Eq. (1)
 //! on the same field as LM; the lowest cost wins.
 
-use super::cost::{apply_increment, image_jacobian, total_cost, CostMap, Pinhole, Rigid32};
+use super::cost::{apply_increment, image_jacobian, CostMap, Pinhole, Rigid32};
 use crate::se3::{unit_twist, Pose};
 use nalgebra::{Point3, Vector3};
 
@@ -54,8 +54,13 @@ pub fn axis_steps(
 }
 
 /// One search step from `pose` with per-axis steps `deltas` (see [`axis_steps`]).
-pub fn search_step(
-    map: &impl CostMap,
+///
+/// Each candidate moves a point by at most about a pixel, so its image position is taken to first
+/// order, u + s·δ_k·∂u/∂ξ_k: one projection and one Jacobian per point serve all 13 candidates,
+/// and the 13 samples of a point fall on the same few cache lines of the field. The winner's pose
+/// is then composed exactly.
+pub fn search_step<M: CostMap>(
+    map: &M,
     pin: &Pinhole,
     pose: &Pose,
     points: &[[f32; 3]],
@@ -63,23 +68,40 @@ pub fn search_step(
     deltas: &[f64; 6],
 ) -> SearchOutcome {
     let pivot_c = (pose * Point3::from(*pivot_o)).coords;
-    let candidate_pose = |i: usize| {
-        if i == 0 {
-            *pose
-        } else {
-            let k = (i - 1) / 2;
-            let sign = if i % 2 == 1 { 1.0 } else { -1.0 };
-            apply_increment(pose, &(unit_twist(k) * (sign * deltas[k])), &pivot_c)
+    let pivot = [pivot_c.x as f32, pivot_c.y as f32, pivot_c.z as f32];
+    let rig = Rigid32::from_pose(pose);
+    let d: [f32; 6] = std::array::from_fn(|k| deltas[k] as f32);
+    let far = map.max_value();
+    // Serial on purpose: the tracker owns one core and leaves the other to the event source; on two
+    // cores rayon's spinning workers cost more than they save (measured in benches/RESULTS.md).
+    let mut sums = [0.0f32; N_CANDIDATES];
+    for &x in points {
+        let p = rig.apply(x);
+        let Some((u, v)) = pin.project(p) else {
+            sums.iter_mut().for_each(|s| *s += far);
+            continue;
+        };
+        let j = image_jacobian(pin, p, pivot);
+        sums[0] += map.sample(u, v);
+        for k in 0..6 {
+            let (du, dv) = (d[k] * j[0][k], d[k] * j[1][k]);
+            sums[2 * k + 1] += map.sample(u + du, v + dv);
+            sums[2 * k + 2] += map.sample(u - du, v - dv);
         }
-    };
+    }
     let n = points.len().max(1) as f32;
-    let costs: [f32; N_CANDIDATES] = std::array::from_fn(|i| {
-        total_cost(map, pin, &Rigid32::from_pose(&candidate_pose(i)), points) / n
-    });
+    let costs: [f32; N_CANDIDATES] = std::array::from_fn(|i| sums[i] / n);
     // Ties keep the lower index, so the null candidate wins unless something is strictly better.
     let best = (0..N_CANDIDATES).fold(0, |b, i| if costs[i] < costs[b] { i } else { b });
+    let pose_out = if best == 0 {
+        *pose
+    } else {
+        let k = (best - 1) / 2;
+        let sign = if best % 2 == 1 { 1.0 } else { -1.0 };
+        apply_increment(pose, &(unit_twist(k) * (sign * deltas[k])), &pivot_c)
+    };
     SearchOutcome {
-        pose: candidate_pose(best),
+        pose: pose_out,
         candidate: best,
         costs,
     }

@@ -1,0 +1,193 @@
+//! Per-update costs of the tracker at the paper's working point: the printed box at Z = 0.6 m on
+//! the 1280×720 IMX636, ~1000 model points, the SCARF active set holding the box's edges plus
+//! 20 % noise. An *update* is one published pose: the field rebuilt from the active set, then one
+//! LM or one search step. Also the solver steps alone on a fixed field.
+
+mod common;
+
+use common::{pose, textured_box};
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use evcore::field::{DistanceField, FieldParams};
+use evcore::pointset::{extract_point_set, PointSetParams};
+use evcore::rng::Rng;
+use evcore::solve::cost::{centroid, Pinhole, Rigid32};
+use evcore::solve::lm::{lm_pyramid, LmParams};
+use evcore::solve::search::{axis_steps, search_step};
+use evcore::solve::SolverMode;
+use evcore::tracker::{TrackerConfig, TrackerCore};
+use evcore::{Camera, EventBatch, Roi};
+use nalgebra::{Translation3, Vector6};
+use std::hint::black_box;
+
+/// Events on every edge pixel of the box at `pose` (raw sensor pixels), in random order, plus
+/// 20 % uniform noise.
+fn edge_events(cam: &Camera, mesh: &evcore::mesh::Mesh, seed: u64) -> EventBatch {
+    let dense = PointSetParams {
+        max_points: 100_000,
+        ..PointSetParams::default()
+    };
+    let points = extract_point_set(mesh, cam, &pose(), &dense)
+        .expect("points")
+        .points_o;
+    let rig = Rigid32::from_pose(&pose());
+    let mut px: Vec<(u16, u16)> = points
+        .iter()
+        .filter_map(|&x| {
+            let p = rig.apply(x);
+            let (u, v) = cam.project(&nalgebra::Vector3::new(
+                f64::from(p[0]),
+                f64::from(p[1]),
+                f64::from(p[2]),
+            ))?;
+            let (u, v) = (u.round(), v.round());
+            (u >= 0.0 && v >= 0.0 && u < f64::from(cam.width) && v < f64::from(cam.height))
+                .then_some((u as u16, v as u16))
+        })
+        .collect();
+    let mut rng = Rng::new(seed);
+    let n_noise = px.len() / 5;
+    for _ in 0..n_noise {
+        px.push((
+            rng.below(u64::from(cam.width)) as u16,
+            rng.below(u64::from(cam.height)) as u16,
+        ));
+    }
+    for i in (1..px.len()).rev() {
+        px.swap(i, rng.below(i as u64 + 1) as usize);
+    }
+    let mut batch = EventBatch::with_capacity(px.len());
+    for (i, (x, y)) in px.into_iter().enumerate() {
+        batch.push(x, y, 1, i as i64);
+    }
+    batch
+}
+
+fn bench(c: &mut Criterion) {
+    let cam = Camera::imx636();
+    let mesh = textured_box([0.16, 0.21, 0.06], 1);
+    let points = extract_point_set(&mesh, &cam.rectified(), &pose(), &PointSetParams::default())
+        .expect("S*")
+        .points_o;
+    let events = edge_events(&cam, &mesh, 7);
+    eprintln!(
+        "{} model points, {} events in the active set input",
+        points.len(),
+        events.len()
+    );
+    // Start a few pixels off so the steps do real work.
+    let start = Translation3::new(0.002, -0.001, 0.0) * pose();
+
+    let mut group = c.benchmark_group("tracker");
+    group.throughput(Throughput::Elements(1));
+    for mode in [SolverMode::EdftPlus, SolverMode::Edopts, SolverMode::Edft] {
+        let config = TrackerConfig {
+            solver: mode,
+            ..TrackerConfig::default()
+        };
+        let mut core = TrackerCore::new(&cam, points.clone(), start, config).expect("core");
+        core.ingest(&events).expect("ingest");
+        group.bench_function(format!("update_{}", mode.name()), |b| {
+            b.iter(|| {
+                // Re-centre now and then so the estimate does not settle into a no-op.
+                if core.latest().seq % 50 == 0 {
+                    core.reset_pose(start).expect("pose");
+                }
+                black_box(core.step())
+            })
+        });
+    }
+    group.finish();
+
+    // The pieces on a fixed field.
+    let rect = cam.rectified();
+    let pins: Vec<Pinhole> = (0..3).map(|l| Pinhole::at_level(&rect, l)).collect();
+    let rig = Rigid32::from_pose(&pose());
+    let uv = points
+        .iter()
+        .filter_map(|&x| pins[0].project(rig.apply(x)))
+        .map(|(u, v)| (f64::from(u), f64::from(v)));
+    let roi = Roi::around(uv, 48.0, rect.width, rect.height).expect("in view");
+    let lut = evcore::UndistortLut::new(&cam);
+    let mut mask_full = vec![0u8; rect.n_pixels()];
+    for i in 0..events.len() {
+        let idx = lut.map(events.x[i], events.y[i]);
+        if idx != evcore::UndistortLut::OUTSIDE {
+            mask_full[idx as usize] = 1;
+        }
+    }
+    let mut mask = Vec::with_capacity(roi.area());
+    for y in roi.y0..roi.y0 + roi.height {
+        let row = (y * rect.width + roi.x0) as usize;
+        mask.extend_from_slice(&mask_full[row..row + roi.width as usize]);
+    }
+    eprintln!("ROI {}x{}", roi.width, roi.height);
+    let mut fill_core =
+        TrackerCore::new(&cam, points.clone(), pose(), TrackerConfig::default()).expect("core");
+    fill_core.ingest(&events).expect("ingest");
+    let mut scratch = vec![0u8; roi.area()];
+    c.bench_function("scarf_fill_mask_roi", |b| {
+        b.iter(|| fill_core.surface().fill_mask(black_box(roi), &mut scratch))
+    });
+    let mut field = DistanceField::new(FieldParams::default()).expect("field");
+    c.bench_function("field_build_level0", |b| {
+        b.iter(|| field.build(black_box(&mask), roi, 1, false).expect("build"))
+    });
+    c.bench_function("field_build_3_levels", |b| {
+        b.iter(|| field.build(black_box(&mask), roi, 3, false).expect("build"))
+    });
+    field.build(&mask, roi, 3, false).expect("build");
+    let pivot = centroid(&points);
+    let off = evcore::solve::cost::apply_increment(
+        &pose(),
+        &Vector6::new(0.002, -0.001, 0.0, 0.0, 0.0, 0.0),
+        &pivot,
+    );
+    let deltas = axis_steps(&pins[0], &off, &points, &pivot, 8);
+    c.bench_function("search_step", |b| {
+        b.iter(|| {
+            search_step(
+                field.level(0),
+                &pins[0],
+                black_box(&off),
+                &points,
+                &pivot,
+                &deltas,
+            )
+        })
+    });
+    let levels: Vec<_> = (0..3u32)
+        .rev()
+        .map(|l| (field.level(l), pins[l as usize]))
+        .collect();
+    c.bench_function("lm_step_3_levels", |b| {
+        b.iter(|| {
+            lm_pyramid(
+                &levels,
+                black_box(off),
+                &points,
+                &pivot,
+                &LmParams::default(),
+            )
+        })
+    });
+    let mut ingest_core =
+        TrackerCore::new(&cam, points.clone(), pose(), TrackerConfig::default()).expect("core");
+    let mut g = c.benchmark_group("ingest");
+    g.throughput(Throughput::Elements(events.len() as u64));
+    let mut t = 0i64;
+    let mut batch = events.clone();
+    g.bench_function("tracker_ingest_scarf", |b| {
+        b.iter(|| {
+            // Keep time moving forward so every batch validates.
+            for v in batch.t_us.iter_mut() {
+                t += 1;
+                *v = t;
+            }
+            ingest_core.ingest(black_box(&batch)).expect("ingest")
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
