@@ -267,12 +267,7 @@ impl TrackerCore {
             .iter()
             .filter_map(|&x| pin.project(rig.apply(x)))
             .map(|(u, v)| (f64::from(u), f64::from(v)));
-        Roi::around(
-            uv,
-            self.config.roi_margin_px,
-            self.rect.width,
-            self.rect.height,
-        )
+        Roi::around(uv, margin_px, self.rect.width, self.rect.height)
     }
 
     /// Set the pose (e.g. re-initialisation); the front-end keeps its events.

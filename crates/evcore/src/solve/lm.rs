@@ -10,6 +10,7 @@
 use super::cost::{CostMap, Pinhole, Rigid32};
 use crate::se3::Pose;
 use nalgebra::{Matrix6, Vector3, Vector6};
+use std::borrow::Cow;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LmParams {
@@ -193,8 +194,12 @@ pub fn lm_level(
     (pose, iterations)
 }
 
+/// Coarse levels keep at least this many points when they are thinned.
+const MIN_COARSE_POINTS: usize = 128;
+
 /// One pyramidal LM step (Eq. 2): `levels` ordered coarse to fine, each a map with its pinhole;
-/// each level starts from the previous level's result.
+/// each level starts from the previous level's result. A level 2^ℓ times coarser uses every
+/// 2^ℓ-th point: its pixels are that much larger, so denser points add cost but no information.
 pub fn lm_pyramid<M: CostMap>(
     levels: &[(&M, Pinhole)],
     pose: Pose,
@@ -204,8 +209,15 @@ pub fn lm_pyramid<M: CostMap>(
 ) -> LmReport {
     let mut pose_out = pose;
     let mut iterations = 0;
-    for (map, pin) in levels {
-        let (p, it) = lm_level(*map, pin, pose_out, points, pivot_o, params);
+    for (i, (map, pin)) in levels.iter().enumerate() {
+        let coarseness = levels.len() - 1 - i;
+        let stride = (1usize << coarseness).min((points.len() / MIN_COARSE_POINTS).max(1));
+        let thinned: Cow<[[f32; 3]]> = if stride == 1 {
+            Cow::Borrowed(points)
+        } else {
+            Cow::Owned(points.iter().step_by(stride).copied().collect())
+        };
+        let (p, it) = lm_level(*map, pin, pose_out, &thinned, pivot_o, params);
         pose_out = p;
         iterations += it;
     }
