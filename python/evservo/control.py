@@ -294,9 +294,7 @@ class Pbvs:
         e_c = np.concatenate([R.T @ e_w[:3], R.T @ e_w[3:]])
         return PbvsCommand(v_cmd, a_cmd, e_c, "rejected" if reason else "ok", reason, T_w_ctgt, v_ref)
 
-    def _ingest(
-        self, t_s: float, T_w_c: np.ndarray, v_c_w: np.ndarray, T_c_o: np.ndarray, pose_t_s: float
-    ) -> str:
+    def _ingest(self, t_s: float, T_w_c: np.ndarray, v_c_w: np.ndarray, T_c_o: np.ndarray, pose_t_s: float) -> str:
         """Check and fold in one tracker pose; return '' if accepted, else why it was refused."""
         assert self._pose_t_s is not None and self._t_c_o_ema is not None
         try:

@@ -61,9 +61,7 @@ def _checked_path(path: str | os.PathLike) -> tuple[Path, str]:
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix not in _SUFFIXES:
-        raise ValueError(
-            f"unsupported event file extension {suffix!r} for {p} (supported: {', '.join(_SUFFIXES)})"
-        )
+        raise ValueError(f"unsupported event file extension {suffix!r} for {p} (supported: {', '.join(_SUFFIXES)})")
     if not p.is_file():
         raise FileNotFoundError(f"no such event file: {p}")
     return p, suffix

@@ -146,9 +146,7 @@ def _make_drill() -> trimesh.Trimesh:
         colours.append(np.tile((grey, grey, grey, 255), (len(part.vertices), 1)))
     v = np.vstack(vertices)
     v -= (v.min(axis=0) + v.max(axis=0)) / 2.0
-    return trimesh.Trimesh(
-        v, np.vstack(faces), vertex_colors=np.vstack(colours).astype(np.uint8), process=False
-    )
+    return trimesh.Trimesh(v, np.vstack(faces), vertex_colors=np.vstack(colours).astype(np.uint8), process=False)
 
 
 # --- football --------------------------------------------------------------------------------

@@ -139,9 +139,7 @@ class SimArm:
         mujoco.mj_kinematics(self.model, d)
         return pose_of(d.xpos[self._ee], d.xmat[self._ee])
 
-    def solve_ik(
-        self, T_w_e: np.ndarray, q0: np.ndarray, tol: float = 1e-5, max_iter: int = 300
-    ) -> np.ndarray:
+    def solve_ik(self, T_w_e: np.ndarray, q0: np.ndarray, tol: float = 1e-5, max_iter: int = 300) -> np.ndarray:
         """Joint positions (rad) placing the end effector at ``T_w_e``, by damped Gauss–Newton from
         ``q0`` within the position limits, staying near ``q0`` in the null space of a redundant arm.
         Raises ``RuntimeError`` if it does not converge."""
