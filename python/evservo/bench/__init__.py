@@ -1,0 +1,1 @@
+"""Benchmarks that go beyond criterion's microbenchmarks: end-to-end rates and latencies."""
