@@ -4,6 +4,7 @@ import time
 
 import numpy as np
 import pytest
+import trimesh
 
 import evservo
 from conftest import box_start_pose
@@ -103,6 +104,11 @@ def test_bad_input_raises_and_leaves_the_tracker_usable(camera, box_sequence):
         evservo.Tracker(camera, "box", bad)
     with pytest.raises(ValueError):
         evservo.Camera(1280, 720, 0.0, 1000.0, 640.0, 360.0)
+    with pytest.raises(ValueError, match="no vertices"):
+        evservo.Tracker(camera, trimesh.Trimesh(), T0)
+    flat = trimesh.Trimesh(vertices=np.zeros((3, 3)), faces=[[0, 1, 2]], process=False)
+    with pytest.raises(ValueError, match="degenerate"):
+        evservo.Tracker(camera, flat, T0)
     with pytest.raises(ValueError, match="unknown solver"):
         evservo.Tracker(camera, "box", T0, solver="icp")
     trk = evservo.Tracker(camera, "box", T0)
