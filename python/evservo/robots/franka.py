@@ -106,7 +106,8 @@ class FrankaArm:
         return np.array(self._call(lambda r: r.current_joint_state.position), dtype=float)
 
     def twist_w(self) -> np.ndarray:
-        """Measured EE twist (base frame; m/s, rad/s)."""
+        """EE twist as franky reports it (base frame; m/s, rad/s): while a motion runs, the twist its
+        1 kHz loop is commanding; at rest, franky's estimate from the measured state."""
         tw = self._call(lambda r: r.current_cartesian_state.velocity.end_effector_twist)
         return np.concatenate([np.asarray(tw.linear, dtype=float), np.asarray(tw.angular, dtype=float)])
 
@@ -133,13 +134,17 @@ class FrankaArm:
     # -- connection ------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Stop the arm and wait (at most 2 s) for the motion to end (idempotent)."""
+        """Stop the arm, wait (at most 2 s) for the motion to end and drop the connection (idempotent)."""
+        if self.robot is None:
+            return
         self.gate.close()
         if self._lost is None and not self.dry_run:
             try:
                 self.robot.join_motion(timeout=2.0)
             except self._fr.Exception as err:
                 log.warning("Franka %s: motion ended with %s", self.host, err)
+        # franky has no disconnect call: the connection closes when its robot object goes away.
+        self.robot = None
 
     def __enter__(self) -> FrankaArm:
         return self
@@ -150,6 +155,8 @@ class FrankaArm:
     def _call(self, get: Callable[[Any], Any]) -> Any:
         if self._lost is not None:
             raise ConnectionError(f"connection to the Franka robot at {self.host} lost: {self._lost}")
+        if self.robot is None:
+            raise ConnectionError(f"FrankaArm for {self.host} is closed")
         try:
             return get(self.robot)
         except (self._fr.NetworkException, self._fr.ProtocolException) as err:

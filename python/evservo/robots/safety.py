@@ -199,10 +199,10 @@ class SafetyGate:
             return
         try:
             self._halt()
-        except Exception:
+        except Exception as err:
             # The stop itself failed (e.g. the link is gone): nothing more can be done from here, and
             # the original error, if any, matters more to the caller than this one.
-            log.exception("%s: halt failed (%s)", self.name, reason)
+            log.error("%s: halt failed (%s): %r", self.name, reason, err)
 
     @property
     def last_sent(self) -> np.ndarray:
