@@ -12,9 +12,9 @@ export PATH := $(abspath $(BIN)):$(HOME)/.cargo/bin:$(PATH)
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
-$(VENV)/.deps: requirements.txt Makefile | $(BIN)/python
+$(VENV)/.deps: requirements.txt requirements-hw.txt Makefile | $(BIN)/python
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -r requirements.txt
+	$(BIN)/python -m pip install -q -r requirements.txt -r requirements-hw.txt
 	# Only robosuite's MIT-licensed robot MJCF/mesh files are read; its own dependencies are not needed.
 	$(BIN)/python -m pip install -q --no-deps robosuite==1.5.2
 	touch $@
