@@ -586,8 +586,14 @@ fn run(mut core: TrackerCore, shared: &Shared) -> TrackerCore {
     // the next push instead of spinning.
     let mut steps_without_events = 0;
     while !shared.stop.load(Ordering::Acquire) {
+        // Only what is queued now: a producer faster than ingest must not starve the solver.
+        // Anything beyond that waits for the next step, or is dropped at the queue if it keeps
+        // coming faster than it can be ingested.
         let mut got = false;
-        while let Some(batch) = shared.queue.pop() {
+        for _ in 0..shared.queue.len() {
+            let Some(batch) = shared.queue.pop() else {
+                break;
+            };
             core.ingest_unchecked(&batch);
             got = true;
         }
