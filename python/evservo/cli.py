@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from evservo.commands import demo, info
+from evservo.commands import demo, info, sim, track
 
 # Each module registers its own subcommand; add new ones here.
-COMMANDS = (demo, info)
+COMMANDS = (demo, info, sim, track)
 
 
 def build_parser() -> argparse.ArgumentParser:
