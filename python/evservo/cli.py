@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from evservo.commands import bench, demo, info
 
 # Each module registers its own subcommand; add new ones here.
-COMMANDS = (bench, demo, info)
+from evservo.commands import bench, demo, info, sim, track
+
+# Each module registers its own subcommand; add new ones here.
+COMMANDS = (bench, demo, info, sim, track)
 
 
 def build_parser() -> argparse.ArgumentParser:

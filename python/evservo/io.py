@@ -194,6 +194,52 @@ def _raw_time_slices(p: Path, delta_t_us: int) -> Iterator[np.ndarray]:
         yield head
 
 
+def _is_our_h5(p: Path) -> bool:
+    try:
+        with h5py.File(p, "r") as f:
+            return "events" in f and isinstance(f["events"], h5py.Group)
+    except OSError as e:
+        raise DecodeError(f"{p}: not a readable HDF5 file: {e}") from e
+
+
+def _h5_blocks(p: Path, n: int) -> Iterator[np.ndarray]:
+    """Our HDF5 layout read ``n`` events at a time, so long recordings never sit in memory whole."""
+    try:
+        with h5py.File(p, "r") as f:
+            g = f["events"]
+            total = len(g["t"])
+            for start in range(0, total, n):
+                yield _columns_to_cd({name: g[name][start : start + n] for name in EVENT_CD.names})
+    except (KeyError, OSError, ValueError, TypeError) as e:
+        raise DecodeError(f"{p}: unreadable event HDF5: {e}") from e
+
+
+def _block_time_slices(blocks: Iterator[np.ndarray], delta_t_us: int) -> Iterator[np.ndarray]:
+    """The slices of :func:`_array_time_slices` over a stream of blocks (same boundaries, same
+    stream-order rule), carrying partial slices across block edges."""
+    end, carry, t_max = None, [], None
+    for block in blocks:
+        if len(block) == 0:
+            continue
+        if end is None:
+            end = (int(block["t"][0]) // delta_t_us + 1) * delta_t_us
+        running = np.maximum.accumulate(block["t"])
+        if t_max is not None:
+            running = np.maximum(running, t_max)
+        t_max = int(running[-1])
+        start = 0
+        while True:
+            stop = int(np.searchsorted(running, end, side="left"))
+            if stop == len(block):
+                carry.append(block[start:])
+                break
+            yield np.concatenate([*carry, block[start:stop]], dtype=EVENT_CD)
+            carry, start = [], stop
+            end += delta_t_us
+    if carry:
+        yield np.concatenate(carry, dtype=EVENT_CD)
+
+
 def _array_time_slices(events: np.ndarray, delta_t_us: int) -> Iterator[np.ndarray]:
     if len(events) == 0:
         return
@@ -234,6 +280,10 @@ def open_events(
         if n_events is not None:
             return _raw_blocks(p, n_events)
         return _raw_time_slices(p, delta_t_us)
+    if suffix in _H5_SUFFIXES and _is_our_h5(p):
+        if n_events is not None:
+            return _h5_blocks(p, n_events)
+        return _block_time_slices(_h5_blocks(p, _RAW_BLOCK_EVENTS), delta_t_us)
     events = _load_array(p, suffix)[0]
     if n_events is not None:
         return (events[i : i + n_events] for i in range(0, len(events), n_events))
@@ -270,6 +320,8 @@ def info(path: str | os.PathLike) -> dict:
             format=reader.format, width=reader.width, height=reader.height, n_events=n,
             t_first_us=t_first, t_last_us=t_last, geometry_inferred=False,
         )  # fmt: skip
+    if suffix in _H5_SUFFIXES and _is_our_h5(p):
+        return _h5_info(p)
     events, width, height, inferred, layout = _load_array(p, suffix)
     empty = len(events) == 0
     return dict(
@@ -277,6 +329,28 @@ def info(path: str | os.PathLike) -> dict:
         t_first_us=None if empty else int(events["t"][0]), t_last_us=None if empty else int(events["t"][-1]),
         geometry_inferred=inferred,
     )  # fmt: skip
+
+
+def _h5_info(p: Path) -> dict:
+    """:func:`info` of our HDF5 layout from the dataset shapes and end points; a simulated recording
+    (:mod:`evservo.sim.record`) also reports ``object``, ``trajectory``, ``duration_s`` and ``has_gt``."""
+    try:
+        with h5py.File(p, "r") as f:
+            g = f["events"]
+            t = g["t"]
+            n = len(t)
+            out = dict(
+                format="hdf5", width=int(g.attrs["width"]), height=int(g.attrs["height"]), n_events=n,
+                t_first_us=int(t[0]) if n else None, t_last_us=int(t[n - 1]) if n else None, geometry_inferred=False,
+            )  # fmt: skip
+            if f.attrs.get("evservo_recording", 0):
+                out.update(
+                    object=str(f.attrs["object"]), trajectory=str(f.attrs["trajectory"]),
+                    duration_s=float(f.attrs["duration_s"]), has_gt="gt/T_c_o" in f,
+                )  # fmt: skip
+            return out
+    except (KeyError, OSError, ValueError, TypeError) as e:
+        raise DecodeError(f"{p}: unreadable event HDF5: {e}") from e
 
 
 def write_events(path: str | os.PathLike, events: np.ndarray, width: int, height: int) -> None:

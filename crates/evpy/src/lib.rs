@@ -9,6 +9,7 @@ mod field;
 mod io;
 mod model;
 mod sim;
+mod simcam;
 mod tracker;
 
 #[pymodule]
@@ -19,6 +20,7 @@ fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     field::register(m)?;
     tracker::register(m)?;
     sim::register(m)?;
+    simcam::register(m)?;
     model::register(m)?;
     io::register(m)?;
     Ok(())

@@ -14,7 +14,7 @@ use std::borrow::Cow;
 const EVENT_CD_ITEMSIZE: usize = 16;
 
 /// Metavision's `EventCD` dtype, built once per interpreter.
-fn event_cd_dtype(py: Python<'_>) -> PyResult<&Bound<'_, PyAny>> {
+pub(crate) fn event_cd_dtype(py: Python<'_>) -> PyResult<&Bound<'_, PyAny>> {
     static DTYPE: PyOnceLock<Py<PyAny>> = PyOnceLock::new();
     let dtype = DTYPE.get_or_try_init(py, || -> PyResult<Py<PyAny>> {
         let spec = PyDict::new(py);
@@ -33,7 +33,7 @@ fn event_cd_dtype(py: Python<'_>) -> PyResult<&Bound<'_, PyAny>> {
 
 /// Pack a batch as little-endian EventCD records (padding zeroed, so output bytes are
 /// deterministic too).
-fn pack_event_cd(ev: &EventBatch) -> Vec<u8> {
+pub(crate) fn pack_event_cd(ev: &EventBatch) -> Vec<u8> {
     let mut bytes = vec![0u8; ev.len() * EVENT_CD_ITEMSIZE];
     for (k, rec) in bytes.chunks_exact_mut(EVENT_CD_ITEMSIZE).enumerate() {
         rec[0..2].copy_from_slice(&ev.x[k].to_le_bytes());
@@ -44,7 +44,7 @@ fn pack_event_cd(ev: &EventBatch) -> Vec<u8> {
     bytes
 }
 
-fn to_event_cd<'py>(py: Python<'py>, bytes: Vec<u8>) -> PyResult<Bound<'py, PyAny>> {
+pub(crate) fn to_event_cd<'py>(py: Python<'py>, bytes: Vec<u8>) -> PyResult<Bound<'py, PyAny>> {
     bytes
         .into_pyarray(py)
         .call_method1("view", (event_cd_dtype(py)?,))
@@ -69,7 +69,11 @@ fn frame_slice<'a>(
     })
 }
 
-fn apply_override(p: &mut SimParams, key: &str, value: &Bound<'_, PyAny>) -> PyResult<()> {
+pub(crate) fn apply_override(
+    p: &mut SimParams,
+    key: &str,
+    value: &Bound<'_, PyAny>,
+) -> PyResult<()> {
     match key {
         "c_pos" => p.c_pos = value.extract()?,
         "c_neg" => p.c_neg = value.extract()?,

@@ -56,6 +56,7 @@
 //! Not modelled: the photoreceptor low-pass (v2e `cutoff_hz`, intensity-dependent bandwidth),
 //! read-out latency and bandwidth limits (ERC), and motion blur over the exposure.
 
+pub mod camera;
 mod params;
 mod pixel;
 

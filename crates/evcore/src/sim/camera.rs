@@ -1,0 +1,799 @@
+//! A rendered event camera: object mesh + background → distorted linear-intensity frame →
+//! [`EventSimulator`].
+//!
+//! Each [`SimCamera::advance`] renders the scene in a pinhole *canvas* (the rectified grid, grown
+//! so that every raw pixel's undistorted position falls inside it), resamples the canvas into
+//! the raw (distorted) sensor grid through a remap table built once, and steps the sensor model.
+//!
+//! * **Canvas.** Barrel distortion shows, in the raw corners, rays that lie outside the
+//!   rectified `width`×`height` frame, so the canvas is the bounding box of all raw pixels'
+//!   undistorted positions plus a small border, with the principal point shifted accordingly.
+//!   It is capped at [`MAX_CANVAS_SCALE`] times the sensor per side; raw pixels whose ray falls
+//!   outside the cap, or where the distortion model cannot be inverted, see a constant black
+//!   (they lie outside the lens's usable field) and never fire.
+//! * **Remap.** Raw pixel (x, y) takes the bilinear sample of the canvas at its undistorted
+//!   position; the canvas has one sample per pixel (no anti-aliasing).
+//! * **Background.** Either a uniform intensity or an infinite textured plane: the plane z = 0
+//!   of frame bg, posed in the camera by `T_c_bg`, carrying square cells of side `cell_m` whose
+//!   albedo is one of four high-contrast levels drawn from a hash of (cell, seed). It is
+//!   evaluated analytically per pixel (no triangles), z-tested against the object, unlit (its
+//!   albedo is its intensity). Rays that miss the plane see black.
+//! * **Region of interest.** While the camera does not move relative to the background, only
+//!   pixels the object covers now or covered at the previous frame can change. The step then
+//!   renders and simulates only that region: the canvas box of the object's vertices at both
+//!   poses (pinhole projection keeps the convex cover exact), mapped to the raw grid through its
+//!   sampled border, grown by `margin_px`, and stepped with [`EventSimulator::step_roi`]. With
+//!   noise-free parameters it gives exactly the events of a full-frame step (tested); with noise,
+//!   pixels outside the region emit no noise (see the simulator's ROI notes). A new background
+//!   pose, a vertex at or behind the near plane, or the first frame force a full frame.
+
+use crate::camera::Camera;
+use crate::error::{ensure, Result};
+use crate::event::EventBatch;
+use crate::image::Roi;
+use crate::mesh::Mesh;
+use crate::render::{RenderOptions, Renderer, NEAR_PLANE_M};
+use crate::se3::Pose;
+use crate::sim::{EventSimulator, SimParams};
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+use std::sync::Arc;
+
+/// The canvas may be at most this many times the sensor's width and height.
+pub const MAX_CANVAS_SCALE: u32 = 3;
+
+/// Spare canvas pixels around the undistorted sensor footprint, so bilinear taps stay inside.
+const CANVAS_BORDER_PX: f64 = 2.0;
+
+/// Samples per side of the canvas box when its border is mapped to the raw grid: enough that
+/// the smooth distortion cannot bulge between samples by more than a small fraction of a pixel.
+const BORDER_SAMPLES: usize = 64;
+
+/// Albedo levels of the background cells: dark to bright, ≥ 1.1 log units apart, so every cell
+/// border is a strong edge.
+const BACKGROUND_LEVELS: [f32; 4] = [0.04, 0.15, 0.45, 0.9];
+
+/// A textured background plane; see the module documentation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BackgroundPlane {
+    /// Pose of the plane's frame in the camera (the plane is its z = 0, its x–y cells).
+    pub t_c_bg: Pose,
+    /// Side of a texture cell in metres.
+    pub cell_m: f64,
+    /// Seed of the cell albedos.
+    pub seed: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Background {
+    /// Every pixel the object does not cover has this linear intensity.
+    Uniform(f32),
+    Plane(BackgroundPlane),
+}
+
+impl BackgroundPlane {
+    /// Albedo of cell (i, j): one of [`BACKGROUND_LEVELS`] from a 64-bit mix of (i, j, seed).
+    fn albedo(&self, i: i64, j: i64) -> f32 {
+        let mut h = self.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        h ^= (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+        h = (h ^ (h >> 31)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        h ^= h >> 29;
+        BACKGROUND_LEVELS[(h & 3) as usize]
+    }
+}
+
+/// The plane in camera coordinates, ready for per-ray evaluation.
+struct PlaneInCamera {
+    plane: BackgroundPlane,
+    /// Plane normal (bg z axis) and its offset n·p₀ in the camera frame.
+    n: Vector3<f64>,
+    d: f64,
+    /// Rows of R_bg_c for the x and y axes, and the matching offsets, so that
+    /// (x, y)_bg = (ax·p + bx, ay·p + by) for a camera-frame point p.
+    ax: Vector3<f64>,
+    ay: Vector3<f64>,
+    bx: f64,
+    by: f64,
+}
+
+impl PlaneInCamera {
+    fn new(plane: BackgroundPlane) -> Self {
+        let r = plane.t_c_bg.rotation.to_rotation_matrix();
+        let t = plane.t_c_bg.translation.vector;
+        let (ex, ey, ez) = (
+            r.matrix().column(0),
+            r.matrix().column(1),
+            r.matrix().column(2),
+        );
+        Self {
+            plane,
+            n: ez.into_owned(),
+            d: ez.dot(&t),
+            ax: ex.into_owned(),
+            ay: ey.into_owned(),
+            bx: -ex.dot(&t),
+            by: -ey.dot(&t),
+        }
+    }
+
+    /// (depth in metres, intensity) of the plane along the ray (rx, ry, 1); `None` if missed.
+    #[inline]
+    fn hit(&self, rx: f64, ry: f64) -> Option<(f32, f32)> {
+        let ray = Vector3::new(rx, ry, 1.0);
+        let denom = self.n.dot(&ray);
+        let z = self.d / denom;
+        if !(z.is_finite() && z > NEAR_PLANE_M) {
+            return None;
+        }
+        let p = ray * z;
+        let (x, y) = (self.ax.dot(&p) + self.bx, self.ay.dot(&p) + self.by);
+        let c = self.plane.cell_m;
+        let value = self
+            .plane
+            .albedo((x / c).floor() as i64, (y / c).floor() as i64);
+        Some((z as f32, value))
+    }
+}
+
+/// What one [`SimCamera::advance`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameInfo {
+    /// Raw-grid region that was re-rendered and stepped (the full sensor on full frames).
+    pub roi: Roi,
+    pub full_frame: bool,
+}
+
+/// The rendered event camera; see the module documentation.
+pub struct SimCamera {
+    camera: Camera,
+    canvas: Camera,
+    /// Canvas position (x, y) of each raw pixel, row-major; NaN where the pixel sees nothing.
+    map: Vec<[f32; 2]>,
+    mesh: Arc<Mesh>,
+    renderer: Renderer,
+    opts: RenderOptions,
+    background: Background,
+    sim: EventSimulator,
+    margin_px: u32,
+    /// The current raw frame (linear intensity), kept whole so that ROI steps can be cut from it.
+    raw: Vec<f32>,
+    /// Scratch: the composited canvas region and the raw ROI values.
+    canvas_buf: Vec<f32>,
+    roi_buf: Vec<f32>,
+    /// The background plane over the whole canvas, (depth m, intensity) per pixel, rebuilt when
+    /// the plane moves: a static camera then pays for it once.
+    bg_cache: Vec<(f32, f32)>,
+    prev_pose: Option<Pose>,
+    last: Option<FrameInfo>,
+}
+
+impl SimCamera {
+    /// `camera`: the sensor with its distortion. `mesh`: the object, shaded with `opts`
+    /// (`opts.background` is ignored; `background` decides). `params`: the sensor model.
+    /// `margin_px`: growth of the ROI around the object's raw-grid box, pixels.
+    pub fn new(
+        camera: Camera,
+        mesh: Arc<Mesh>,
+        opts: RenderOptions,
+        background: Background,
+        params: SimParams,
+        margin_px: u32,
+    ) -> Result<Self> {
+        let camera = Camera::new(
+            camera.width,
+            camera.height,
+            camera.fx,
+            camera.fy,
+            camera.cx,
+            camera.cy,
+            camera.dist,
+        )?;
+        ensure(
+            [opts.ambient, opts.diffuse]
+                .iter()
+                .all(|v| v.is_finite() && *v >= 0.0),
+            || format!("shading must be finite and >= 0, got {opts:?}"),
+        )?;
+        match background {
+            Background::Uniform(v) => ensure(v.is_finite() && v >= 0.0, || {
+                format!("background intensity must be finite and >= 0, got {v}")
+            })?,
+            Background::Plane(p) => {
+                ensure(p.cell_m.is_finite() && p.cell_m > 0.0, || {
+                    format!(
+                        "background cell size must be finite and > 0 m, got {}",
+                        p.cell_m
+                    )
+                })?;
+                let finite = p
+                    .t_c_bg
+                    .translation
+                    .vector
+                    .iter()
+                    .chain(p.t_c_bg.rotation.coords.iter())
+                    .all(|v| v.is_finite());
+                ensure(finite, || "background pose T_c_bg must be finite".into())?;
+            }
+        }
+        ensure(margin_px <= 1024, || {
+            format!("ROI margin must be <= 1024 px, got {margin_px}")
+        })?;
+        let sim = EventSimulator::new(camera.width, camera.height, params)?;
+        let (canvas, map) = build_canvas(&camera)?;
+        Ok(Self {
+            raw: vec![0.0; camera.n_pixels()],
+            camera,
+            canvas,
+            map,
+            mesh,
+            renderer: Renderer::new(),
+            opts: RenderOptions {
+                background: 0.0,
+                ..opts
+            },
+            background,
+            sim,
+            margin_px,
+            canvas_buf: Vec::new(),
+            roi_buf: Vec::new(),
+            bg_cache: Vec::new(),
+            prev_pose: None,
+            last: None,
+        })
+    }
+
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// The pinhole canvas the scene is rendered in (rectified grid, shifted and grown).
+    pub fn canvas(&self) -> &Camera {
+        &self.canvas
+    }
+
+    pub fn simulator(&self) -> &EventSimulator {
+        &self.sim
+    }
+
+    /// The current raw frame, linear intensity, row-major `width`×`height`.
+    pub fn frame(&self) -> &[f32] {
+        &self.raw
+    }
+
+    /// What the last advance did, `None` before the first.
+    pub fn last_frame(&self) -> Option<FrameInfo> {
+        self.last
+    }
+
+    pub fn background(&self) -> Background {
+        self.background
+    }
+
+    /// Largest raw-pixel displacement of any mesh vertex between poses `a` and `b` (both object
+    /// in camera). Vertices at or behind the near plane in either pose count as infinitely far,
+    /// so a caller sub-dividing by this never skips past a crossing of the camera plane.
+    pub fn max_displacement_px(&self, a: &Pose, b: &Pose) -> f64 {
+        self.mesh
+            .vertices
+            .par_iter()
+            .with_min_len(512)
+            .map(|v| {
+                let p = Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]));
+                let (pa, pb) = ((a * p).coords, (b * p).coords);
+                if pa.z <= NEAR_PLANE_M || pb.z <= NEAR_PLANE_M {
+                    return f64::INFINITY;
+                }
+                match (self.camera.project(&pa), self.camera.project(&pb)) {
+                    (Some((ua, va)), Some((ub, vb))) => (ua - ub).hypot(va - vb),
+                    _ => f64::INFINITY,
+                }
+            })
+            .reduce(|| 0.0, f64::max)
+    }
+
+    /// Render the object at `t_c_o` (and the background, moved to `t_c_bg` if given) at time
+    /// `t_us`, step the sensor and put the interval's events in `out` (cleared first). The first
+    /// call only initialises the sensor and yields no events. Times must increase strictly.
+    pub fn advance(
+        &mut self,
+        t_c_o: &Pose,
+        t_us: i64,
+        t_c_bg: Option<&Pose>,
+        out: &mut EventBatch,
+    ) -> Result<FrameInfo> {
+        let finite = |p: &Pose| {
+            p.translation
+                .vector
+                .iter()
+                .chain(p.rotation.coords.iter())
+                .all(|v| v.is_finite())
+        };
+        ensure(finite(t_c_o), || "pose T_c_o must be finite".into())?;
+        if let Some(t) = self.sim.time_us() {
+            ensure(t_us > t, || {
+                format!("frame time {t_us} µs is not after the previous frame at {t} µs")
+            })?;
+        }
+        let mut moved_background = false;
+        if let Some(bg) = t_c_bg {
+            ensure(finite(bg), || {
+                "background pose T_c_bg must be finite".into()
+            })?;
+            match &mut self.background {
+                Background::Plane(p) => {
+                    moved_background = p.t_c_bg != *bg;
+                    p.t_c_bg = *bg;
+                }
+                Background::Uniform(_) => {
+                    return Err(crate::Error::InvalidArgument(
+                        "a background pose needs a background plane, not a uniform background"
+                            .into(),
+                    ))
+                }
+            }
+        }
+        if moved_background || self.prev_pose.is_none() {
+            self.cache_background();
+        }
+        let region = match self.prev_pose {
+            Some(prev) if !moved_background => self.changed_region(&prev, t_c_o),
+            _ => Region::Full,
+        };
+        let info = match region {
+            Region::Full => {
+                let full = Roi::full(self.camera.width, self.camera.height);
+                self.render_raw(
+                    t_c_o,
+                    full,
+                    Roi::full(self.canvas.width, self.canvas.height),
+                )?;
+                self.sim.step(&self.raw, t_us, out)?;
+                FrameInfo {
+                    roi: full,
+                    full_frame: true,
+                }
+            }
+            Region::Part { raw, canvas } => {
+                self.render_raw(t_c_o, raw, canvas)?;
+                self.step_roi(raw, t_us, out)?;
+                FrameInfo {
+                    roi: raw,
+                    full_frame: false,
+                }
+            }
+            Region::Nothing => {
+                // Time must still advance, or the next step would spread its changes over the
+                // skipped interval too; one unchanged pixel does that at no cost.
+                let roi = Roi {
+                    x0: 0,
+                    y0: 0,
+                    width: 1,
+                    height: 1,
+                };
+                self.step_roi(roi, t_us, out)?;
+                FrameInfo {
+                    roi,
+                    full_frame: false,
+                }
+            }
+        };
+        self.prev_pose = Some(*t_c_o);
+        self.last = Some(info);
+        Ok(info)
+    }
+
+    fn cache_background(&mut self) {
+        let Background::Plane(plane) = self.background else {
+            self.bg_cache = Vec::new();
+            return;
+        };
+        let plane = PlaneInCamera::new(plane);
+        let c = &self.canvas;
+        let w = c.width as usize;
+        self.bg_cache.resize(c.n_pixels(), (0.0, 0.0));
+        self.bg_cache
+            .par_chunks_mut(w)
+            .enumerate()
+            .for_each(|(y, row)| {
+                let ry = (y as f64 - c.cy) / c.fy;
+                for (x, px) in row.iter_mut().enumerate() {
+                    let rx = (x as f64 - c.cx) / c.fx;
+                    *px = plane.hit(rx, ry).unwrap_or((f32::INFINITY, 0.0));
+                }
+            });
+    }
+
+    fn step_roi(&mut self, roi: Roi, t_us: i64, out: &mut EventBatch) -> Result<()> {
+        let w = self.camera.width as usize;
+        self.roi_buf.clear();
+        for y in roi.y0..roi.y0 + roi.height {
+            let start = y as usize * w + roi.x0 as usize;
+            self.roi_buf
+                .extend_from_slice(&self.raw[start..start + roi.width as usize]);
+        }
+        self.sim.step_roi(&self.roi_buf, roi, t_us, out)
+    }
+
+    /// The raw and canvas regions that can change between the object at `prev` and at `cur`.
+    fn changed_region(&self, prev: &Pose, cur: &Pose) -> Region {
+        let mut pts = Vec::with_capacity(2 * self.mesh.vertices.len());
+        for pose in [prev, cur] {
+            for v in &self.mesh.vertices {
+                let p =
+                    (pose * Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]))).coords;
+                if p.z <= NEAR_PLANE_M {
+                    // Near-plane clipping makes the projected cover unbounded.
+                    return Region::Full;
+                }
+                pts.push((
+                    self.canvas.fx * p.x / p.z + self.canvas.cx,
+                    self.canvas.fy * p.y / p.z + self.canvas.cy,
+                ));
+            }
+        }
+        // Anything outside the canvas is seen by no raw pixel.
+        let Some(cover) = Roi::around(pts, 1.0, self.canvas.width, self.canvas.height) else {
+            return Region::Nothing;
+        };
+        // Map the cover's border to the raw grid: the distortion is a smooth bijection over
+        // the canvas, so the image of a box is bounded by the image of its border.
+        let (x0, y0) = (f64::from(cover.x0), f64::from(cover.y0));
+        let (x1, y1) = (x0 + f64::from(cover.width), y0 + f64::from(cover.height));
+        let (ox, oy) = (
+            self.canvas.cx - self.camera.cx,
+            self.canvas.cy - self.camera.cy,
+        );
+        let border = (0..=BORDER_SAMPLES).flat_map(|k| {
+            let s = k as f64 / BORDER_SAMPLES as f64;
+            let (xs, ys) = (x0 + s * (x1 - x0), y0 + s * (y1 - y0));
+            [(xs, y0), (xs, y1), (x0, ys), (x1, ys)]
+        });
+        let raw_pts: Vec<(f64, f64)> = border
+            .map(|(u, v)| self.camera.distort_pixel(u - ox, v - oy))
+            .collect();
+        let Some(raw) = Roi::around(
+            raw_pts,
+            f64::from(self.margin_px) + 1.0,
+            self.camera.width,
+            self.camera.height,
+        ) else {
+            return Region::Nothing;
+        };
+        // The canvas pixels the raw region's bilinear taps read.
+        let w = self.camera.width as usize;
+        let (mut lo_x, mut lo_y, mut hi_x, mut hi_y) = (f32::MAX, f32::MAX, f32::MIN, f32::MIN);
+        for y in raw.y0..raw.y0 + raw.height {
+            let row = &self.map[y as usize * w + raw.x0 as usize..][..raw.width as usize];
+            for &[u, v] in row {
+                // NaN compares false and drops out.
+                lo_x = lo_x.min(u);
+                lo_y = lo_y.min(v);
+                hi_x = hi_x.max(u);
+                hi_y = hi_y.max(v);
+            }
+        }
+        if lo_x > hi_x {
+            return Region::Nothing;
+        }
+        let canvas = Roi::around(
+            [
+                (f64::from(lo_x), f64::from(lo_y)),
+                (f64::from(hi_x), f64::from(hi_y)),
+            ],
+            1.0,
+            self.canvas.width,
+            self.canvas.height,
+        );
+        match canvas {
+            Some(canvas) => Region::Part { raw, canvas },
+            None => Region::Nothing,
+        }
+    }
+
+    /// Render `canvas_roi` of the canvas, composite the background, and resample `raw_roi` of
+    /// the raw frame from it. `canvas_roi` must hold every bilinear tap of `raw_roi`.
+    fn render_raw(&mut self, t_c_o: &Pose, raw_roi: Roi, canvas_roi: Roi) -> Result<()> {
+        let rendered = self.renderer.render_into(
+            &self.mesh,
+            &self.canvas,
+            t_c_o,
+            Some(canvas_roi),
+            &self.opts,
+        )?;
+        let cw = canvas_roi.width as usize;
+        self.canvas_buf.clear();
+        self.canvas_buf.extend_from_slice(&rendered.intensity);
+        let canvas = &self.canvas;
+        match self.background {
+            Background::Uniform(level) => {
+                self.canvas_buf
+                    .par_iter_mut()
+                    .zip(rendered.depth_m.par_iter())
+                    .with_min_len(4096)
+                    .for_each(|(i, d)| {
+                        if !d.is_finite() {
+                            *i = level;
+                        }
+                    });
+            }
+            Background::Plane(_) => {
+                let stride = canvas.width as usize;
+                let cache = &self.bg_cache;
+                self.canvas_buf
+                    .par_chunks_mut(cw)
+                    .zip(rendered.depth_m.par_chunks(cw))
+                    .enumerate()
+                    .for_each(|(r, (row, depth))| {
+                        let start = (canvas_roi.y0 as usize + r) * stride + canvas_roi.x0 as usize;
+                        for ((i, &d), &(z, value)) in
+                            row.iter_mut().zip(depth).zip(&cache[start..start + cw])
+                        {
+                            // A miss is stored at infinite depth with black: background pixels
+                            // take it, object pixels keep their shade.
+                            if z < d || !d.is_finite() {
+                                *i = value;
+                            }
+                        }
+                    });
+            }
+        }
+        let (w, src) = (self.camera.width as usize, &self.canvas_buf);
+        let ch = canvas_roi.height as usize;
+        let (cx0, cy0) = (canvas_roi.x0 as f32, canvas_roi.y0 as f32);
+        let map = &self.map;
+        self.raw
+            .par_chunks_mut(w)
+            .enumerate()
+            .skip(raw_roi.y0 as usize)
+            .take(raw_roi.height as usize)
+            .for_each(|(y, row)| {
+                let x0 = raw_roi.x0 as usize;
+                let span = &mut row[x0..x0 + raw_roi.width as usize];
+                let taps = &map[y * w + x0..][..span.len()];
+                for (out, &[u, v]) in span.iter_mut().zip(taps) {
+                    *out = bilinear(src, cw, ch, u - cx0, v - cy0);
+                }
+            });
+        Ok(())
+    }
+}
+
+enum Region {
+    Full,
+    Part { raw: Roi, canvas: Roi },
+    Nothing,
+}
+
+/// Bilinear sample of a `w`×`h` image at (x, y) (pixel centres at integers); 0 outside or NaN.
+#[inline]
+fn bilinear(img: &[f32], w: usize, h: usize, x: f32, y: f32) -> f32 {
+    if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f32 && y <= (h - 1) as f32) {
+        return 0.0;
+    }
+    let (x0, y0) = (x as usize, y as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let (r0, r1) = (&img[y0 * w..], &img[y1 * w..]);
+    let top = r0[x0] + (r0[x1] - r0[x0]) * fx;
+    let bottom = r1[x0] + (r1[x1] - r1[x0]) * fx;
+    top + (bottom - top) * fy
+}
+
+/// The pinhole canvas covering every raw pixel's undistorted position, and the remap table.
+fn build_canvas(camera: &Camera) -> Result<(Camera, Vec<[f32; 2]>)> {
+    let w = camera.width as usize;
+    let rect: Vec<Option<(f64, f64)>> = (0..camera.n_pixels())
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|i| camera.rectify_pixel((i % w) as f64, (i / w) as f64))
+        .collect();
+    let (wf, hf) = (f64::from(camera.width), f64::from(camera.height));
+    let cap = |v: f64, size: f64| {
+        let extra = 0.5 * (f64::from(MAX_CANVAS_SCALE) - 1.0) * size;
+        v.clamp(-extra, size - 1.0 + extra)
+    };
+    let (mut lo_x, mut lo_y, mut hi_x, mut hi_y) = (0.0_f64, 0.0_f64, wf - 1.0, hf - 1.0);
+    for &(u, v) in rect.iter().flatten() {
+        lo_x = lo_x.min(cap(u, wf));
+        lo_y = lo_y.min(cap(v, hf));
+        hi_x = hi_x.max(cap(u, wf));
+        hi_y = hi_y.max(cap(v, hf));
+    }
+    let ox = (CANVAS_BORDER_PX - lo_x).ceil();
+    let oy = (CANVAS_BORDER_PX - lo_y).ceil();
+    let cw = (hi_x + ox + CANVAS_BORDER_PX).ceil() as u32 + 1;
+    let ch = (hi_y + oy + CANVAS_BORDER_PX).ceil() as u32 + 1;
+    let canvas = Camera::new(
+        cw,
+        ch,
+        camera.fx,
+        camera.fy,
+        camera.cx + ox,
+        camera.cy + oy,
+        [0.0; 5],
+    )?;
+    let map = rect
+        .into_iter()
+        .map(|r| match r {
+            Some((u, v)) if cap(u, wf) == u && cap(v, hf) == v => {
+                [(u + ox) as f32, (v + oy) as f32]
+            }
+            _ => [f32::NAN; 2],
+        })
+        .collect();
+    Ok((canvas, map))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::{test_cube, Shading};
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+
+    fn small_camera() -> Camera {
+        Camera::new(
+            320,
+            200,
+            300.0,
+            305.0,
+            158.3,
+            101.7,
+            [-0.25, 0.05, 0.0, 0.0, 0.0],
+        )
+        .unwrap()
+    }
+
+    fn pose(x: f64, z: f64, angle: f64) -> Pose {
+        Isometry3::from_parts(
+            Translation3::new(x, 0.01, z),
+            UnitQuaternion::from_euler_angles(0.3 + angle, -0.4, 0.2),
+        )
+    }
+
+    fn plane() -> Background {
+        Background::Plane(BackgroundPlane {
+            t_c_bg: Isometry3::translation(0.0, 0.0, 1.5),
+            cell_m: 0.05,
+            seed: 3,
+        })
+    }
+
+    fn sim_camera(margin: u32) -> SimCamera {
+        let mesh = Arc::new(test_cube(0.12, Shading::Constant(0.8)));
+        let params = SimParams::preset("clean").unwrap();
+        SimCamera::new(
+            small_camera(),
+            mesh,
+            RenderOptions::default(),
+            plane(),
+            params,
+            margin,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn canvas_covers_every_raw_pixel() {
+        let cam = small_camera();
+        let sc = sim_camera(2);
+        assert!(sc.canvas.width > cam.width && sc.canvas.height > cam.height);
+        let valid = sc.map.iter().filter(|m| m[0].is_finite()).count();
+        assert_eq!(valid, cam.n_pixels());
+        // Each raw pixel's tap is the undistorted position shifted into the canvas.
+        let (ox, oy) = (sc.canvas.cx - cam.cx, sc.canvas.cy - cam.cy);
+        let [u, v] = sc.map[5 * cam.width as usize + 7];
+        let (ud, vd) = cam.distort_pixel(f64::from(u) - ox, f64::from(v) - oy);
+        assert!(
+            (ud - 7.0).abs() < 1e-3 && (vd - 5.0).abs() < 1e-3,
+            "({ud}, {vd})"
+        );
+    }
+
+    #[test]
+    fn roi_steps_equal_full_frame_steps() {
+        // Same motion through the ROI path and through forced full frames (a margin of the
+        // whole sensor makes every region the full sensor).
+        let mut roi_cam = sim_camera(2);
+        let mut full_cam = sim_camera(1024);
+        let (mut a, mut b) = (EventBatch::default(), EventBatch::default());
+        let mut total = 0;
+        for k in 0..40 {
+            let p = pose(-0.05 + 0.002 * k as f64, 0.7, 0.01 * k as f64);
+            let ia = roi_cam.advance(&p, 1000 * k, None, &mut a).unwrap();
+            full_cam.advance(&p, 1000 * k, None, &mut b).unwrap();
+            assert_eq!(a, b, "step {k}");
+            if k > 0 {
+                assert!(!ia.full_frame && ia.roi.area() < small_camera().n_pixels());
+            }
+            total += a.len();
+        }
+        assert!(total > 1000, "the moving cube fires ({total} events)");
+        assert_eq!(roi_cam.frame(), full_cam.frame());
+    }
+
+    #[test]
+    fn static_scene_is_silent_and_moving_background_forces_a_full_frame() {
+        let mut sc = sim_camera(2);
+        let mut ev = EventBatch::default();
+        let p = pose(0.0, 0.7, 0.0);
+        for k in 0..5 {
+            sc.advance(&p, 1000 * k, None, &mut ev).unwrap();
+            assert!(ev.is_empty());
+        }
+        let bg = Isometry3::translation(0.03, 0.0, 1.5);
+        let info = sc.advance(&p, 6000, Some(&bg), &mut ev).unwrap();
+        assert!(info.full_frame && ev.len() > 500, "{} events", ev.len());
+        // Off-screen object: nothing changes, time still advances.
+        let gone = pose(5.0, 0.7, 0.0);
+        sc.advance(&gone, 7000, None, &mut ev).unwrap();
+        let n_leave = ev.len();
+        sc.advance(&gone, 8000, None, &mut ev).unwrap();
+        assert!(n_leave > 100 && ev.is_empty());
+        assert_eq!(sc.simulator().time_us(), Some(8000));
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        let mut sc = sim_camera(2);
+        let mut ev = EventBatch::default();
+        let nan = Isometry3::translation(f64::NAN, 0.0, 1.0);
+        assert!(sc.advance(&nan, 0, None, &mut ev).is_err());
+        sc.advance(&pose(0.0, 0.7, 0.0), 10, None, &mut ev).unwrap();
+        assert!(sc.advance(&pose(0.0, 0.7, 0.0), 10, None, &mut ev).is_err());
+        let mesh = Arc::new(test_cube(0.12, Shading::Constant(0.8)));
+        let params = SimParams::preset("clean").unwrap();
+        let bad_bg = Background::Plane(BackgroundPlane {
+            t_c_bg: Pose::identity(),
+            cell_m: 0.0,
+            seed: 0,
+        });
+        let opts = RenderOptions::default();
+        assert!(SimCamera::new(
+            small_camera(),
+            mesh.clone(),
+            opts,
+            bad_bg,
+            params.clone(),
+            2
+        )
+        .is_err());
+        let mut uniform = SimCamera::new(
+            small_camera(),
+            mesh,
+            opts,
+            Background::Uniform(0.2),
+            params,
+            2,
+        )
+        .unwrap();
+        uniform
+            .advance(&pose(0.0, 0.7, 0.0), 0, None, &mut ev)
+            .unwrap();
+        let bg = Pose::identity();
+        assert!(uniform
+            .advance(&pose(0.0, 0.7, 0.0), 5, Some(&bg), &mut ev)
+            .is_err());
+        // Behind the camera: full frame, no error.
+        let behind = pose(0.0, -0.5, 0.0);
+        assert!(
+            uniform
+                .advance(&behind, 9, None, &mut ev)
+                .unwrap()
+                .full_frame
+        );
+    }
+
+    #[test]
+    fn displacement_bounds_the_motion_of_vertices() {
+        let sc = sim_camera(2);
+        let (a, b) = (pose(0.0, 0.7, 0.0), pose(0.001, 0.7, 0.0));
+        let d = sc.max_displacement_px(&a, &b);
+        // 1 mm at ~0.7 m with f = 300 px is ~0.43 px at the centre, more where distortion
+        // stretches less; the bound is what matters.
+        assert!((0.3..0.7).contains(&d), "{d}");
+        assert_eq!(sc.max_displacement_px(&a, &a), 0.0);
+        assert!(sc
+            .max_displacement_px(&a, &pose(0.0, -0.1, 0.0))
+            .is_infinite());
+    }
+}
