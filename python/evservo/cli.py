@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-
-# Each module registers its own subcommand; add new ones here.
 from evservo.commands import bench, demo, info, sim, track
 
 # Each module registers its own subcommand; add new ones here.
