@@ -1,3 +1,6 @@
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -5,6 +8,9 @@ import evservo
 from evservo import geometry, trajectories
 from evservo.synth import edge_events
 from evservo.tracking import model_point_set
+
+#: The real Prophesee recordings (shared/event-samples beside the repository, or $EVSERVO_SAMPLES).
+SAMPLES = Path(os.environ.get("EVSERVO_SAMPLES", Path(__file__).resolve().parents[2] / "shared/event-samples"))
 
 
 @pytest.fixture(scope="session")

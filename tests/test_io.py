@@ -1,17 +1,15 @@
 """evservo.io against real Prophesee recordings (digests from independent decoders) and round trips."""
 
 import hashlib
-import os
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
-from evservo._evcore import DecodeError, RawReader
 
+from conftest import SAMPLES
 from evservo import io
-
-SAMPLES = Path(os.environ.get("EVSERVO_SAMPLES", Path(__file__).parents[2] / "shared/event-samples"))
+from evservo._evcore import DecodeError, RawReader
 
 # From shared/event-samples/README.md: SHA3-224 over t as u64, x u16, y u16, on as bool.
 EXPECTED = {

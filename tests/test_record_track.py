@@ -2,16 +2,18 @@
 codes on bad input."""
 
 import json
+import os
 
 import numpy as np
 import pytest
 
+from conftest import SAMPLES
 from evservo import io
 from evservo.cli import main
 from evservo.commands.track import clamp_time
 from evservo.sim.record import load_recording
 
-RAW_SAMPLE = "/work/shared/event-samples/prophesee_gen41_evt3_1280x720.raw"
+RAW_SAMPLE = str(SAMPLES / "prophesee_gen41_evt3_1280x720.raw")
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +57,7 @@ def test_track_end_to_end_with_edft_plus(trans_rot, rec_dir, capsys):
     assert "edft+" in capsys.readouterr().out
 
 
+@pytest.mark.skipif(not os.path.exists(RAW_SAMPLE), reason=f"{RAW_SAMPLE} not found (set EVSERVO_SAMPLES)")
 def test_track_runs_through_the_real_evt3_sample(tmp_path):
     out = tmp_path / "raw"
     args = ["track", RAW_SAMPLE, "--model", "box", "--init-pose", "0,0,0.6,0,0,0,1", "--quiet", "--out", str(out)]
@@ -85,7 +88,18 @@ def test_time_steps_back_are_clamped_not_dropped():
         ["track", RAW_SAMPLE, "--out", "{d}/t"],
         ["track", RAW_SAMPLE, "--model", "box", "--init-pose", "1,2,3", "--out", "{d}/t"],
         ["track", RAW_SAMPLE, "--model", "box", "--init-pose", "0,0,0.6,0,0,0,1", "--solver", "x", "--out", "{d}/t"],
-        ["track", RAW_SAMPLE, "--model", "box", "--init-pose", "0,0,0.6,0,0,0,1", "--camera", "{d}/c.json", "--out", "x"],  # noqa: E501,
+        [
+            "track",
+            RAW_SAMPLE,
+            "--model",
+            "box",
+            "--init-pose",
+            "0,0,0.6,0,0,0,1",
+            "--camera",
+            "{d}/c.json",
+            "--out",
+            "x",
+        ],  # noqa: E501,
     ],
 )
 def test_bad_input_exits_2_with_a_message(args, tmp_path, capsys):
