@@ -57,6 +57,20 @@ impl Camera {
         })
     }
 
+    /// The same camera after the checks of [`Camera::new`]: the fields are public, so a camera built
+    /// by hand is validated where it enters a long-lived object.
+    pub fn checked(self) -> Result<Self> {
+        Self::new(
+            self.width,
+            self.height,
+            self.fx,
+            self.fy,
+            self.cx,
+            self.cy,
+            self.dist,
+        )
+    }
+
     /// The Prophesee IMX636 (EVK4) of the paper: 1280×720, calibrated intrinsics, k1 only.
     pub fn imx636() -> Self {
         Self {

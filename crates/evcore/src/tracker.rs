@@ -145,15 +145,7 @@ impl TrackerCore {
             "the point set contains NaN".into()
         })?;
         check_pose(&t_c_o)?;
-        let camera = Camera::new(
-            camera.width,
-            camera.height,
-            camera.fx,
-            camera.fy,
-            camera.cx,
-            camera.cy,
-            camera.dist,
-        )?;
+        let camera = camera.checked()?;
         let rect = camera.rectified();
         let surface = make_surface(&config.frontend, camera.width, camera.height)?;
         let field = DistanceField::new(config.field)?;

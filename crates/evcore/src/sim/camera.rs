@@ -179,15 +179,7 @@ impl SimCamera {
         params: SimParams,
         margin_px: u32,
     ) -> Result<Self> {
-        let camera = Camera::new(
-            camera.width,
-            camera.height,
-            camera.fx,
-            camera.fy,
-            camera.cx,
-            camera.cy,
-            camera.dist,
-        )?;
+        let camera = camera.checked()?;
         ensure(
             [opts.ambient, opts.diffuse]
                 .iter()
