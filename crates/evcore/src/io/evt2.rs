@@ -2,7 +2,7 @@
 //! CD_OFF 0x0 / CD_ON 0x1 carry ts[27:22] (low 6 µs bits), x[21:11], y[10:0];
 //! TIME_HIGH 0x8 carries bits 33..6 of the time. Everything else is counted and ignored.
 
-use super::{check_geometry, reserve, unwrap_time_base, Carry, DecodeStats, MAX_SENSOR_SIDE_PX};
+use super::{reserve, unwrap_time_base, DecodeStats, Stream, WordDecoder, MAX_SENSOR_SIDE_PX};
 use crate::error::{Error, Result};
 use crate::EventBatch;
 
@@ -15,72 +15,37 @@ const PERIOD_US: i64 = 1 << 34;
 const WRAP_GUARD_US: i64 = (10 << 6) + (1 << 6);
 
 /// Streaming EVT 2.0 decoder (see the module docs of [`crate::io`] for the shared rules).
+pub type Evt2Decoder = Stream<Evt2Words, 4>;
+
+/// The EVT 2.0 half of [`Evt2Decoder`]: sensor bounds, time base and statistics.
 #[derive(Debug, Clone)]
-pub struct Evt2Decoder {
+pub struct Evt2Words {
     width: u32,
     height: u32,
-    carry: Carry<4>,
     /// Time base in µs with wraps applied; `None` until the first TIME_HIGH.
     time_high_us: Option<i64>,
     stats: DecodeStats,
-    failed: Option<Error>,
 }
 
-impl Default for Evt2Decoder {
+impl Default for Evt2Words {
+    /// Accepts the full 11-bit address range (2048×2048 px).
     fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl Evt2Decoder {
-    /// A decoder accepting the full 11-bit address range (2048×2048 px).
-    pub fn new() -> Self {
         Self {
             width: MAX_SENSOR_SIDE_PX,
             height: MAX_SENSOR_SIDE_PX,
-            carry: Carry::new(),
             time_high_us: None,
             stats: DecodeStats::default(),
-            failed: None,
         }
     }
+}
 
-    /// A decoder that rejects events outside `width`×`height` px.
-    pub fn with_geometry(width: u32, height: u32) -> Result<Self> {
-        let (width, height) = check_geometry(width, height)?;
-        Ok(Self {
-            width,
-            height,
-            ..Self::new()
-        })
+impl WordDecoder for Evt2Words {
+    fn set_geometry(&mut self, width: u32, height: u32) {
+        (self.width, self.height) = (width, height);
     }
 
-    pub fn stats(&self) -> &DecodeStats {
+    fn stats(&self) -> &DecodeStats {
         &self.stats
-    }
-
-    /// Bytes of an incomplete word held back for the next call.
-    pub fn pending_bytes(&self) -> usize {
-        self.carry.len
-    }
-
-    /// Decodes the next chunk of the stream, appending its events to `out`.
-    pub fn decode(&mut self, bytes: &[u8], out: &mut EventBatch) -> Result<()> {
-        if let Some(e) = &self.failed {
-            return Err(e.clone());
-        }
-        let (first, whole) = self.carry.split(bytes);
-        let mut res = Ok(());
-        if let Some(w) = first {
-            res = self.decode_words(&w, out);
-        }
-        if res.is_ok() {
-            res = self.decode_words(whole, out);
-        }
-        if let Err(e) = &res {
-            self.failed = Some(e.clone());
-        }
-        res
     }
 
     fn decode_words(&mut self, bytes: &[u8], out: &mut EventBatch) -> Result<()> {

@@ -15,7 +15,7 @@
 //! followed by a smaller TIME_LOW is a step back in time, not a wrap, and is output as such.
 //! EXT_TRIGGER 0xA, CONTINUED 0x7/0xF, OTHERS 0xE and the reserved types are counted and ignored.
 
-use super::{check_geometry, unwrap_time_base, Carry, DecodeStats, MAX_SENSOR_SIDE_PX};
+use super::{unwrap_time_base, DecodeStats, Stream, WordDecoder, MAX_SENSOR_SIDE_PX};
 use crate::error::{Error, Result};
 use crate::EventBatch;
 
@@ -45,75 +45,42 @@ struct State {
 }
 
 /// Streaming EVT 3.0 decoder (see the module docs of [`crate::io`] for the shared rules).
+/// Streaming EVT 3.0 decoder (see the module docs of [`crate::io`] for the shared rules).
+pub type Evt3Decoder = Stream<Evt3Words, 2>;
+
+/// The EVT 3.0 half of [`Evt3Decoder`]: sensor bounds, the stateful address/time registers and
+/// statistics.
 #[derive(Debug, Clone)]
-pub struct Evt3Decoder {
+pub struct Evt3Words {
     width: u32,
     height: u32,
-    carry: Carry<2>,
     /// `None` until the first TIME_HIGH.
     state: Option<State>,
     /// Per-block output columns, reused across calls; their length is capacity, not content.
     scratch: EventBatch,
     stats: DecodeStats,
-    failed: Option<Error>,
 }
 
-impl Default for Evt3Decoder {
+impl Default for Evt3Words {
+    /// Accepts the full 11-bit address range (2048×2048 px).
     fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl Evt3Decoder {
-    /// A decoder accepting the full 11-bit address range (2048×2048 px).
-    pub fn new() -> Self {
         Self {
             width: MAX_SENSOR_SIDE_PX,
             height: MAX_SENSOR_SIDE_PX,
-            carry: Carry::new(),
             state: None,
             scratch: EventBatch::default(),
             stats: DecodeStats::default(),
-            failed: None,
         }
     }
+}
 
-    /// A decoder that rejects events outside `width`×`height` px.
-    pub fn with_geometry(width: u32, height: u32) -> Result<Self> {
-        let (width, height) = check_geometry(width, height)?;
-        Ok(Self {
-            width,
-            height,
-            ..Self::new()
-        })
+impl WordDecoder for Evt3Words {
+    fn set_geometry(&mut self, width: u32, height: u32) {
+        (self.width, self.height) = (width, height);
     }
 
-    pub fn stats(&self) -> &DecodeStats {
+    fn stats(&self) -> &DecodeStats {
         &self.stats
-    }
-
-    /// Bytes of an incomplete word held back for the next call.
-    pub fn pending_bytes(&self) -> usize {
-        self.carry.len
-    }
-
-    /// Decodes the next chunk of the stream, appending its events to `out`.
-    pub fn decode(&mut self, bytes: &[u8], out: &mut EventBatch) -> Result<()> {
-        if let Some(e) = &self.failed {
-            return Err(e.clone());
-        }
-        let (first, whole) = self.carry.split(bytes);
-        let mut res = Ok(());
-        if let Some(w) = first {
-            res = self.decode_words(&w, out);
-        }
-        if res.is_ok() {
-            res = self.decode_words(whole, out);
-        }
-        if let Err(e) = &res {
-            self.failed = Some(e.clone());
-        }
-        res
     }
 
     fn decode_words(&mut self, bytes: &[u8], out: &mut EventBatch) -> Result<()> {
@@ -150,7 +117,9 @@ impl Evt3Decoder {
         self.state = Some(s);
         res
     }
+}
 
+impl Evt3Words {
     /// Decodes whole words into the scratch columns, which are sized by the exact number of
     /// events the block can produce so the loop writes by index, and stay in cache; the events
     /// are then appended to `out` with one copy per column.

@@ -20,8 +20,8 @@ mod evt3;
 mod header;
 mod raw;
 
-pub use evt2::Evt2Decoder;
-pub use evt3::Evt3Decoder;
+pub use evt2::{Evt2Decoder, Evt2Words};
+pub use evt3::{Evt3Decoder, Evt3Words};
 pub use header::{Format, RawHeader};
 pub use raw::RawReader;
 
@@ -45,6 +45,78 @@ impl DecodeStats {
     /// All words seen, of any type.
     pub fn words(&self) -> u64 {
         self.words_by_type.iter().sum()
+    }
+}
+
+/// The format-specific half of a streaming decoder: decodes runs of whole words, keeping whatever
+/// state the encoding carries from word to word.
+pub trait WordDecoder: Default {
+    /// Reject events outside `width`×`height` pixels (already checked against the format's range).
+    fn set_geometry(&mut self, width: u32, height: u32);
+    fn stats(&self) -> &DecodeStats;
+    /// Decode whole words (the length is a multiple of the word size).
+    fn decode_words(&mut self, bytes: &[u8], out: &mut crate::EventBatch) -> Result<()>;
+}
+
+/// A streaming decoder: a format's [`WordDecoder`] plus what every format shares, the partial
+/// `N`-byte word carried between calls and the error that poisons the stream once it fails.
+#[derive(Debug, Clone)]
+pub struct Stream<D, const N: usize> {
+    words: D,
+    carry: Carry<N>,
+    failed: Option<Error>,
+}
+
+impl<D: WordDecoder, const N: usize> Default for Stream<D, N> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<D: WordDecoder, const N: usize> Stream<D, N> {
+    /// A decoder accepting the full 11-bit address range (2048×2048 px).
+    pub fn new() -> Self {
+        Self {
+            words: D::default(),
+            carry: Carry::new(),
+            failed: None,
+        }
+    }
+
+    /// A decoder that rejects events outside `width`×`height` px.
+    pub fn with_geometry(width: u32, height: u32) -> Result<Self> {
+        let (width, height) = check_geometry(width, height)?;
+        let mut s = Self::new();
+        s.words.set_geometry(width, height);
+        Ok(s)
+    }
+
+    pub fn stats(&self) -> &DecodeStats {
+        self.words.stats()
+    }
+
+    /// Bytes of an incomplete word held back for the next call.
+    pub fn pending_bytes(&self) -> usize {
+        self.carry.len
+    }
+
+    /// Decodes the next chunk of the stream, appending its events to `out`.
+    pub fn decode(&mut self, bytes: &[u8], out: &mut crate::EventBatch) -> Result<()> {
+        if let Some(e) = &self.failed {
+            return Err(e.clone());
+        }
+        let (first, whole) = self.carry.split(bytes);
+        let mut res = Ok(());
+        if let Some(w) = first {
+            res = self.words.decode_words(&w, out);
+        }
+        if res.is_ok() {
+            res = self.words.decode_words(whole, out);
+        }
+        if let Err(e) = &res {
+            self.failed = Some(e.clone());
+        }
+        res
     }
 }
 
