@@ -107,6 +107,7 @@ class PbvsCommand:
     refused: see ``reason``), ``"stale"`` (no fresh pose for ``stale_after_s``; braking), else ``"ok"``.
     ``T_w_ctgt``: the camera target of Eq. 5 (None before the first accepted pose).
     ``v_ref_w``: the feed-forward reference twist used (zeros without feed-forward).
+    ``watchdog``: True while braking because no fresh pose arrived for ``stale_after_s``.
     """
 
     v_c_w: np.ndarray
@@ -116,6 +117,7 @@ class PbvsCommand:
     reason: str = ""
     T_w_ctgt: np.ndarray | None = None
     v_ref_w: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    watchdog: bool = False
 
 
 class TwistEstimator:
@@ -278,7 +280,7 @@ class Pbvs:
         if t_s - self._pose_t_s > self.stale_after_s:
             T_w_ctgt = self._T_w_o @ geometry.inv(self.T_c_o_des)
             cmd = self._brake(v_c_w, "rejected" if reason else "stale", reason or "no fresh pose")
-            return replace(cmd, e=pose_error(T_w_c, T_w_ctgt), T_w_ctgt=T_w_ctgt)
+            return replace(cmd, e=pose_error(T_w_c, T_w_ctgt), T_w_ctgt=T_w_ctgt, watchdog=True)
 
         T_w_o, v_o_w = self._object_now(t_s)
         T_w_ctgt = T_w_o @ geometry.inv(self.T_c_o_des)
