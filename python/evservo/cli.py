@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from evservo.commands import demo, info
+from evservo.commands import demo, info, servo
 
 # Each module registers its own subcommand; add new ones here.
-COMMANDS = (demo, info)
+COMMANDS = (demo, info, servo)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -7,7 +7,10 @@ Everything runs on the scene's simulated 1 kHz clock, in this order per millisec
    velocity ramp;
 2. the controller (:class:`~evservo.control.Pbvs`, every ``control_period_s``) reads the newest pose
    the tracker has *published by t* and returns a camera twist, which the Panda's command path
-   resolves through the joint-limited QP every tick (1 kHz, like Franka's FCI);
+   resolves through the joint-limited QP every tick (1 kHz, like Franka's FCI). The controller's
+   velocity state is its own previous command, as mc_rtc integrates its QP's output, not the
+   measured twist: the regularised IK realises ~1 % less than asked, and re-basing on that every
+   2 ms would silently eat ~1 m/s² of the commanded acceleration;
 3. the arms move one tick;
 4. the event source turns the true relative pose ``T_c_o`` at the new time into the events of the
    last millisecond, which reach the tracker ``sensing_latency_s`` later (3.5 ms measured in the
@@ -316,9 +319,10 @@ def run_episode(
             v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
             est = tracker.latest(t_us)
             if k % ctrl_every == 0:
+                # A pose counts once, and not at all when the tracker flags itself lost.
                 fresh = est.seq != last_seq and not est.lost
                 last_seq = est.seq
-                cmd = pbvs.update(t, T_w_c, v_cam, est.T_c_o if fresh else None, est.t_us * 1e-6)
+                cmd = pbvs.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6)
                 v_cmd, watchdog = cmd.v_c_w, cmd.watchdog
             if watchdog and not np.any(v_cmd):
                 scene.panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
