@@ -63,9 +63,12 @@ class EpisodeConfig:
     ``distance_m``: camera–object depth Z at the start. ``view_rotvec_rad``: the object's start
     orientation relative to facing the camera (camera frame); the default shows three faces of the
     box, as on the bench (a face-on plane leaves its out-of-plane rotation nearly unobservable, and
-    PBVS turns rotation noise into camera motion through the Z lever arm). ``tracker``: solver (``edft+``, ``edopts``,
-    ``edft``). ``cost_model``: ``measured`` charges the tracker's wall time to the simulated clock;
-    ``fixed`` charges ``lm_cost_s`` per LM step and ``search_cost_s`` per search step (reproducible).
+    PBVS turns rotation noise into camera motion through the Z lever arm).
+    ``tracker``: solver (``edft+``, ``edopts``, ``edft``).
+    ``cost_model``: ``measured`` charges the tracker's compute time to the simulated clock (CPU time
+    of the calling thread: the solver is single-threaded, and on a shared machine wall time would
+    also charge whatever other processes took); ``fixed`` charges ``lm_cost_s`` per LM step and
+    ``search_cost_s`` per search step (reproducible).
     ``dropout_s``: ``(start, end)`` window whose events are lost (sensor or link failure).
     ``lost_pos_m``, ``lost_rot_deg``: tracking counts as lost, and the episode ends, once the estimate
     is this far from the truth at the estimate's time.
@@ -172,6 +175,8 @@ class ClockedTracker:
     """
 
     def __init__(self, tracker: Tracker, cost: Callable[[str, float], float]) -> None:
+        """``cost(kind, cpu_s)``: seconds to charge for a step of ``kind`` ("lm"/"search") that took
+        ``cpu_s`` of this thread's CPU time (ingest included)."""
         self.tracker = tracker
         self.cost = cost
         # One cycle is 1 LM + 4 search steps (edft+) or 5 steps of a single solver (n_search = 4).
@@ -200,7 +205,7 @@ class ClockedTracker:
                 self.free_us = max(self.free_us, self._queue[0][0])
             if self.free_us > now_us:
                 return
-            started = time.perf_counter()
+            started = time.thread_time()
             arrived = []
             while self._queue and self._queue[0][0] <= self.free_us:
                 arrived.append(self._queue.popleft()[1])
@@ -208,8 +213,8 @@ class ClockedTracker:
                 self.tracker.ingest(np.concatenate(arrived))
                 self._steps_without_events = 0
             est = self.tracker.step(1)
-            wall = time.perf_counter() - started
-            cost_us = max(1, round(self.cost(est.step, wall) * 1e6))
+            cpu = time.thread_time() - started
+            cost_us = max(1, round(self.cost(est.step, cpu) * 1e6))
             self.free_us += cost_us
             self.busy_us += cost_us
             self._steps_without_events += 1
@@ -262,8 +267,8 @@ def _primed_source(config: EpisodeConfig, camera: _evcore.Camera, T_c_o0: np.nda
 
 def _cost_model(config: EpisodeConfig) -> Callable[[str, float], float]:
     if config.cost_model == "measured":
-        return lambda _kind, wall_s: wall_s
-    return lambda kind, _wall_s: config.lm_cost_s if kind == "lm" else config.search_cost_s
+        return lambda _kind, cpu_s: cpu_s
+    return lambda kind, _cpu_s: config.lm_cost_s if kind == "lm" else config.search_cost_s
 
 
 def run_episode(
