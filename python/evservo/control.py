@@ -107,6 +107,7 @@ class PbvsCommand:
     refused: see ``reason``), ``"stale"`` (no fresh pose for ``stale_after_s``; braking), else ``"ok"``.
     ``T_w_ctgt``: the camera target of Eq. 5 (None before the first accepted pose).
     ``v_ref_w``: the feed-forward reference twist used (zeros without feed-forward).
+    ``watchdog``: True while braking because no fresh pose arrived for ``stale_after_s``.
     """
 
     v_c_w: np.ndarray
@@ -116,21 +117,33 @@ class PbvsCommand:
     reason: str = ""
     T_w_ctgt: np.ndarray | None = None
     v_ref_w: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    watchdog: bool = False
 
 
 class TwistEstimator:
-    """Alpha–beta filter on a stream of timestamped world poses ``T_w_o``: estimates the pose and twist.
+    """Critically damped alpha–beta filter on a stream of timestamped world poses ``T_w_o``: estimates
+    the pose, the twist and the acceleration.
 
     Translation and rotation are filtered alike, the rotation residual being the rotation vector of
     ``R_meas · R_predᵀ`` (world frame). A constant-velocity motion is tracked without bias, which is what
     makes the feed-forward remove the ramp lag of the PD law.
+
+    The gains follow from ``bandwidth_hz`` and each pose's interval ``dt``: ``α = 1 − exp(−4π f dt)``,
+    ``β = α²/(2 − α)`` (critical damping). Fixed per-pose gains would make the filter's bandwidth, and
+    so the velocity noise it lets through, scale with the pose rate: a tracker publishing at 1 kHz
+    instead of 100 Hz would get ten times the bandwidth and a velocity noise that, through the lever
+    arm of a rotation, swamps the feed-forward. The default 5.5 Hz equals α = 0.5 at 100 Hz.
+
+    The acceleration (``accel_w``: m/s², rad/s²) is the twist estimate's rate of change through a
+    first-order low-pass of time constant ``accel_tau_s`` (seconds; discretised exactly, so it too
+    means the same at any pose rate): differentiating a pose twice needs that much smoothing.
     """
 
-    def __init__(self, alpha: float = 0.5, beta: float = 0.1) -> None:
-        if not (0 < alpha <= 1 and 0 <= beta < 2):
-            raise ValueError("alpha must be in (0, 1] and beta in [0, 2)")
-        self.alpha = alpha
-        self.beta = beta
+    def __init__(self, bandwidth_hz: float = 5.5, accel_tau_s: float = 0.05) -> None:
+        if not (bandwidth_hz > 0 and accel_tau_s > 0):
+            raise ValueError("bandwidth_hz and accel_tau_s must be > 0")
+        self.bandwidth_hz = float(bandwidth_hz)
+        self.accel_tau_s = float(accel_tau_s)
         self.reset()
 
     def reset(self) -> None:
@@ -138,6 +151,7 @@ class TwistEstimator:
         self.t_s: float | None = None
         self.T_w_o = np.eye(4)
         self.twist_w = np.zeros(6)
+        self.accel_w = np.zeros(6)
 
     def predict(self, t_s: float) -> np.ndarray:
         """The pose extrapolated to ``t_s`` (seconds) with the current twist; the last pose if none."""
@@ -155,12 +169,16 @@ class TwistEstimator:
             self.t_s, self.T_w_o, self.twist_w = t_s, T_w_o.copy(), np.zeros(6)
             return
         dt = t_s - self.t_s
+        alpha = 1.0 - np.exp(-4.0 * np.pi * self.bandwidth_hz * dt)
+        beta = alpha * alpha / (2.0 - alpha)
         P = self.predict(t_s)
         r = np.concatenate([T_w_o[:3, 3] - P[:3, 3], rotvec(T_w_o[:3, :3] @ P[:3, :3].T)])
         T = np.eye(4)
-        T[:3, 3] = P[:3, 3] + self.alpha * r[:3]
-        T[:3, :3] = rotmat(self.alpha * r[3:]) @ P[:3, :3]
-        self.twist_w = self.twist_w + (self.beta / dt) * r
+        T[:3, 3] = P[:3, 3] + alpha * r[:3]
+        T[:3, :3] = rotmat(alpha * r[3:]) @ P[:3, :3]
+        dv = (beta / dt) * r
+        self.accel_w += (1.0 - np.exp(-dt / self.accel_tau_s)) * (dv / dt - self.accel_w)
+        self.twist_w = self.twist_w + dv
         self.T_w_o, self.t_s = T, t_s
 
 
@@ -185,7 +203,11 @@ class Pbvs:
     max_jump_m, max_jump_rad: refuse a pose farther than this from the prediction of the previous
         accepted pose. The gate applies only while that pose is fresh: after a stale spell the next
         valid pose is taken as a re-acquisition (EMA and velocity estimate restart from it).
-    ff_alpha, ff_beta: gains of the alpha–beta velocity estimator used for feed-forward and the gate.
+    ff_bandwidth_hz: bandwidth of the object's motion estimator (:class:`TwistEstimator`), used for
+        feed-forward and for the jump gate's prediction.
+    ff_accel: with feed-forward, also feed the target's estimated acceleration forward (mc_rtc's
+        ``refAccel``); without it Eq. 6 trails an accelerating target by ``a_ref / (k + 2√k s + s²)``.
+    ff_accel_tau_s: time constant of the acceleration estimate's low-pass (s).
     """
 
     def __init__(
@@ -198,8 +220,9 @@ class Pbvs:
         stale_after_s: float = 0.05,
         max_jump_m: float = 0.05,
         max_jump_rad: float = 0.3,
-        ff_alpha: float = 0.5,
-        ff_beta: float = 0.1,
+        ff_bandwidth_hz: float = 5.5,
+        ff_accel: bool = True,
+        ff_accel_tau_s: float = 0.05,
     ) -> None:
         if not (np.isfinite(k) and k > 0):
             raise ValueError("k must be finite and > 0")
@@ -216,7 +239,8 @@ class Pbvs:
         self.stale_after_s = float(stale_after_s)
         self.max_jump_m = float(max_jump_m)
         self.max_jump_rad = float(max_jump_rad)
-        self._motion = TwistEstimator(ff_alpha, ff_beta)
+        self.ff_accel = ff_accel
+        self._motion = TwistEstimator(ff_bandwidth_hz, ff_accel_tau_s)
         self.T_c_o_des: np.ndarray | None = None
         self._running = False
         self._reset_tracking()
@@ -278,17 +302,23 @@ class Pbvs:
         if t_s - self._pose_t_s > self.stale_after_s:
             T_w_ctgt = self._T_w_o @ geometry.inv(self.T_c_o_des)
             cmd = self._brake(v_c_w, "rejected" if reason else "stale", reason or "no fresh pose")
-            return replace(cmd, e=pose_error(T_w_c, T_w_ctgt), T_w_ctgt=T_w_ctgt)
+            return replace(cmd, e=pose_error(T_w_c, T_w_ctgt), T_w_ctgt=T_w_ctgt, watchdog=True)
 
         T_w_o, v_o_w = self._object_now(t_s)
         T_w_ctgt = T_w_o @ geometry.inv(self.T_c_o_des)
         e_w = np.concatenate([T_w_ctgt[:3, 3] - T_w_c[:3, 3], rotvec(T_w_ctgt[:3, :3] @ T_w_c[:3, :3].T)])
         # The camera target moves rigidly with the object: same ω, lever arm from the object's origin.
-        v_ref = np.zeros(6)
+        v_ref, a_ref = np.zeros(6), np.zeros(6)
         if self.feedforward:
             lever = T_w_ctgt[:3, 3] - T_w_o[:3, 3]
-            v_ref = np.concatenate([v_o_w[:3] + np.cross(v_o_w[3:], lever), v_o_w[3:]])
-        a = self.k * e_w + self.d * (v_ref - v_c_w)
+            w = v_o_w[3:]
+            v_ref = np.concatenate([v_o_w[:3] + np.cross(w, lever), w])
+            if self.ff_accel:
+                a_o = self._motion.accel_w
+                a_ref = np.concatenate(
+                    [a_o[:3] + np.cross(a_o[3:], lever) + np.cross(w, np.cross(w, lever)), a_o[3:]]
+                )
+        a = a_ref + self.k * e_w + self.d * (v_ref - v_c_w)
         v_cmd, a_cmd = self._saturate(v_c_w, a)
         R = T_w_c[:3, :3]
         e_c = np.concatenate([R.T @ e_w[:3], R.T @ e_w[3:]])

@@ -1,10 +1,12 @@
 """Events synthesised straight from a model's edges: the quick, geometric stand-in for the event
-camera simulator, used by tests and benchmarks that need exact ground truth without rendering.
+camera simulator, used by tests, benchmarks and the closed-loop simulation when exact ground truth
+matters more than photometric realism.
 
 A dense edge point set of the model is moved along a pose trajectory; every time a point's raw
 (distorted) pixel changes, that pixel fires one event, with polarity from the sign of the motion
 and a time drawn uniformly inside the sampling interval. Uniform noise events are added as a
-fraction of the signal events.
+fraction of the signal events, plus optionally a constant background rate (a real sensor's
+background activity, which keeps time stamps flowing when nothing moves).
 """
 
 from __future__ import annotations
@@ -13,6 +15,69 @@ import numpy as np
 
 from evservo import _evcore
 from evservo.events import EVENT_CD
+
+
+class EdgeEventGenerator:
+    """Incremental form of :func:`edge_events`: feed the pose at successive times, get the events of
+    each interval.
+
+    ``points_o`` (M, 3): edge points in the object frame (metres). ``T_c_o0``: object in the camera
+    frame at ``t0_us``. ``noise_fraction``: noise events per signal event. ``noise_rate_hz``:
+    additional background events per second over the whole sensor.
+    """
+
+    def __init__(
+        self,
+        camera: _evcore.Camera,
+        points_o: np.ndarray,
+        T_c_o0: np.ndarray,
+        t0_us: int = 0,
+        noise_fraction: float = 0.2,
+        noise_rate_hz: float = 0.0,
+        seed: int = 0,
+    ) -> None:
+        if not (noise_fraction >= 0 and noise_rate_hz >= 0):
+            raise ValueError("noise_fraction and noise_rate_hz must be >= 0")
+        self.camera = camera
+        self.points_o = np.asarray(points_o, dtype=np.float64)
+        self.noise_fraction = float(noise_fraction)
+        self.noise_rate_hz = float(noise_rate_hz)
+        self._rng = np.random.default_rng(seed)
+        self._prev = self._pixels(T_c_o0)
+        self.t_us = int(t0_us)
+
+    def _pixels(self, T: np.ndarray) -> np.ndarray:
+        uv = self.camera.project(self.points_o @ T[:3, :3].T + T[:3, 3])
+        return np.floor(uv + 0.5)
+
+    def events_until(self, t_us: int, T_c_o: np.ndarray) -> np.ndarray:
+        """The time-sorted EventCD events of ``[self.t_us, t_us)`` given the pose ``T_c_o`` at ``t_us``
+        (µs, strictly after the previous call's)."""
+        t0, t1 = self.t_us, int(t_us)
+        if t1 <= t0:
+            raise ValueError("times must be strictly increasing")
+        W, H = self.camera.width, self.camera.height
+        rng, prev = self._rng, self._prev
+        cur = self._pixels(T_c_o)
+        ok = np.all(np.isfinite(cur), axis=1) & np.all(np.isfinite(prev), axis=1)
+        moved = ok & np.any(cur != prev, axis=1)
+        inside = moved & (cur[:, 0] >= 0) & (cur[:, 0] < W) & (cur[:, 1] >= 0) & (cur[:, 1] < H)
+        sig = cur[inside].astype(np.int64)
+        # Pixels hit by several points fire once.
+        sig = np.unique(sig[:, 1] * W + sig[:, 0])
+        n_noise = rng.binomial(len(sig), self.noise_fraction) if self.noise_fraction > 0 else 0
+        if self.noise_rate_hz > 0:
+            n_noise += rng.poisson(self.noise_rate_hz * (t1 - t0) * 1e-6)
+        noise = rng.integers(0, W * H, size=n_noise)
+        idx = np.concatenate([sig, noise])
+        ev = np.empty(len(idx), dtype=EVENT_CD)
+        ev["x"] = idx % W
+        ev["y"] = idx // W
+        ev["p"] = rng.integers(0, 2, size=len(idx))
+        ev["t"] = rng.integers(t0, t1, size=len(idx))
+        ev.sort(order="t", kind="stable")
+        self._prev, self.t_us = cur, t1
+        return ev
 
 
 def edge_events(
@@ -28,39 +93,10 @@ def edge_events(
     ``poses`` (N, 4, 4) are ``T_c_o`` at ``times_us`` (N,), ``points_o`` (M, 3) edge points in the
     object frame. Returns N−1 time-sorted batches.
     """
-    rng = np.random.default_rng(seed)
     times_us = np.asarray(times_us, dtype=np.int64)
     if len(poses) != len(times_us) or len(times_us) < 2:
         raise ValueError("need one pose per time and at least two times")
     if np.any(np.diff(times_us) <= 0):
         raise ValueError("times must be strictly increasing")
-    W, H = camera.width, camera.height
-    P = np.asarray(points_o, dtype=np.float64)
-
-    def pixels(T: np.ndarray) -> np.ndarray:
-        uv = camera.project(P @ T[:3, :3].T + T[:3, 3])
-        return np.floor(uv + 0.5)
-
-    prev = pixels(poses[0])
-    batches = []
-    for k in range(1, len(times_us)):
-        cur = pixels(poses[k])
-        ok = np.all(np.isfinite(cur), axis=1) & np.all(np.isfinite(prev), axis=1)
-        moved = ok & np.any(cur != prev, axis=1)
-        inside = moved & (cur[:, 0] >= 0) & (cur[:, 0] < W) & (cur[:, 1] >= 0) & (cur[:, 1] < H)
-        sig = cur[inside].astype(np.int64)
-        # Pixels hit by several points fire once.
-        sig = np.unique(sig[:, 1] * W + sig[:, 0])
-        n_noise = rng.binomial(len(sig), noise_fraction) if noise_fraction > 0 else 0
-        noise = rng.integers(0, W * H, size=n_noise)
-        idx = np.concatenate([sig, noise])
-        t0, t1 = times_us[k - 1], times_us[k]
-        ev = np.empty(len(idx), dtype=EVENT_CD)
-        ev["x"] = idx % W
-        ev["y"] = idx // W
-        ev["p"] = rng.integers(0, 2, size=len(idx))
-        ev["t"] = rng.integers(t0, t1, size=len(idx))
-        ev.sort(order="t", kind="stable")
-        batches.append(ev)
-        prev = cur
-    return batches
+    gen = EdgeEventGenerator(camera, points_o, poses[0], int(times_us[0]), noise_fraction, seed=seed)
+    return [gen.events_until(int(t), T) for t, T in zip(times_us[1:], poses[1:], strict=True)]

@@ -145,19 +145,21 @@ class DualArmScene:
         """Ground-truth target pose in the camera frame."""
         return geometry.inv(self.T_w_c()) @ self.T_w_o()
 
-    def start_poses(self, Z_m: float) -> tuple[np.ndarray, np.ndarray]:
-        """The start ``(T_w_o, T_w_c)``: the target at ``target_start_w`` facing the camera, and the
-        camera at depth ``Z_m`` along ``view_dir_w`` looking at the target centre."""
+    def start_poses(self, Z_m: float, rotvec_c_o: object = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+        """The start ``(T_w_o, T_w_c)``: the target at ``target_start_w``, facing the camera turned by
+        ``rotvec_c_o`` (radians, camera frame; e.g. to show the camera several faces of a box), and
+        the camera at depth ``Z_m`` along ``view_dir_w`` looking at the target centre."""
         cfg = self.config
         d = np.asarray(cfg.view_dir_w, float)
         p_o = np.asarray(cfg.target_start_w, float)
         T_w_c = look_at(p_o + Z_m * d / np.linalg.norm(d), p_o)
-        T_w_o = T_w_c @ geometry.pose((0.0, 0.0, Z_m))
+        T_w_o = T_w_c @ geometry.pose((0.0, 0.0, Z_m), rotvec_c_o)
         return T_w_o, T_w_c
 
-    def reset_to_start(self, Z_m: float = 0.9) -> np.ndarray:
-        """Put both arms at rest in the start configuration for depth ``Z_m`` (m); returns ``T_c_o``."""
-        T_w_o, T_w_c = self.start_poses(Z_m)
+    def reset_to_start(self, Z_m: float = 0.9, rotvec_c_o: object = (0.0, 0.0, 0.0)) -> np.ndarray:
+        """Put both arms at rest in the start configuration for depth ``Z_m`` (m) and target
+        orientation ``rotvec_c_o`` (see :meth:`start_poses`); returns ``T_c_o``."""
+        T_w_o, T_w_c = self.start_poses(Z_m, rotvec_c_o)
         q_ur = self.ur.solve_ik(T_w_o @ geometry.inv(self.config.T_e_o), UR_SEED)
         q_pa = self.panda.solve_ik(T_w_c @ geometry.inv(self.config.T_e_c), PANDA_SEED)
         self.ur.set_joint_positions(q_ur)
