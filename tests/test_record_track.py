@@ -99,7 +99,7 @@ def test_time_steps_back_are_clamped_not_dropped():
             "{d}/c.json",
             "--out",
             "x",
-        ],  # noqa: E501,
+        ],
     ],
 )
 def test_bad_input_exits_2_with_a_message(args, tmp_path, capsys):

@@ -315,9 +315,7 @@ class Pbvs:
             v_ref = np.concatenate([v_o_w[:3] + np.cross(w, lever), w])
             if self.ff_accel:
                 a_o = self._motion.accel_w
-                a_ref = np.concatenate(
-                    [a_o[:3] + np.cross(a_o[3:], lever) + np.cross(w, np.cross(w, lever)), a_o[3:]]
-                )
+                a_ref = np.concatenate([a_o[:3] + np.cross(a_o[3:], lever) + np.cross(w, np.cross(w, lever)), a_o[3:]])
         a = a_ref + self.k * e_w + self.d * (v_ref - v_c_w)
         v_cmd, a_cmd = self._saturate(v_c_w, a)
         R = T_w_c[:3, :3]

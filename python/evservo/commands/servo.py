@@ -110,4 +110,3 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     mode.add_argument("--robot", choices=("ur", "franka"), help="real robots (not available in this build)")
     add_episode_arguments(s, distance=0.9, speed=0.4, duration=20.0)
     s.set_defaults(func=run)
-
