@@ -54,6 +54,16 @@ def inv(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def interpolate(T_a: np.ndarray, T_b: np.ndarray, s: float) -> np.ndarray:
+    """The pose a fraction ``s`` of the way from ``T_a`` to ``T_b``: translation linear, rotation along the
+    geodesic (slerp)."""
+    R = Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).as_rotvec()
+    T = np.eye(4)
+    T[:3, :3] = T_a[:3, :3] @ Rotation.from_rotvec(s * R).as_matrix()
+    T[:3, 3] = (1.0 - s) * T_a[:3, 3] + s * T_b[:3, 3]
+    return T
+
+
 def translation_error_m(T_a: np.ndarray, T_b: np.ndarray) -> float:
     """Euclidean distance between the translations of two poses (metres)."""
     return float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]))

@@ -50,9 +50,10 @@ class EdgeEventGenerator:
         uv = self.camera.project(self.points_o @ T[:3, :3].T + T[:3, 3])
         return np.floor(uv + 0.5)
 
-    def events_until(self, t_us: int, T_c_o: np.ndarray) -> np.ndarray:
+    def events_until(self, t_us: int, T_c_o: np.ndarray, T_w_c: np.ndarray | None = None) -> np.ndarray:
         """The time-sorted EventCD events of ``[self.t_us, t_us)`` given the pose ``T_c_o`` at ``t_us``
-        (µs, strictly after the previous call's)."""
+        (µs, strictly after the previous call's). Only the object fires, so the camera's world pose
+        ``T_w_c`` does not matter here."""
         t0, t1 = self.t_us, int(t_us)
         if t1 <= t0:
             raise ValueError("times must be strictly increasing")

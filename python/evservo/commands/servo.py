@@ -34,6 +34,12 @@ def add_episode_arguments(p: argparse.ArgumentParser, *, distance: float, speed:
     p.add_argument("--feedforward", action="store_true", help="feed the target's velocity and acceleration forward")
     p.add_argument("--cost-model", default="measured", choices=COST_MODELS, help="tracker time charged to the clock")
     p.add_argument("--dropout", type=float, nargs=2, metavar=("START", "END"), help="lose all events in [START, END) s")
+    p.add_argument(
+        "--events",
+        default="edges",
+        choices=("edges", "render"),
+        help="event source: the model's edges (fast) or the rendered event camera (realistic, slow)",
+    )
     p.add_argument("--out", type=Path, help="output directory (summary.json, log.csv, motion.png)")
 
 
@@ -53,6 +59,7 @@ def config_from_args(args: argparse.Namespace):
         feedforward=args.feedforward,
         cost_model=args.cost_model,
         dropout_s=tuple(args.dropout) if args.dropout else None,
+        event_source=args.events,
     )
 
 

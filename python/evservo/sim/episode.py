@@ -352,7 +352,7 @@ def run_episode(
         t_next = t_us + TICK_US
         T_now = scene.T_c_o()
         T_c_o_true.append(T_now)
-        events = source.events_until(t_next, T_now)
+        events = source.events_until(t_next, T_now, scene.T_w_c())
         if drop is not None and len(events):
             events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
         n_events += len(events)
