@@ -38,6 +38,7 @@ test: test-rust test-python
 
 bench: setup
 	cargo bench -p evcore
+	$(BIN)/evservo bench --suite latency --out out/bench
 
 lint: $(VENV)/.deps
 	cargo fmt --all -- --check
