@@ -69,11 +69,24 @@ fn frame_slice<'a>(
     })
 }
 
-pub(crate) fn apply_override(
-    p: &mut SimParams,
-    key: &str,
-    value: &Bound<'_, PyAny>,
-) -> PyResult<()> {
+/// Sensor parameters from a preset name, a seed and keyword overrides (shared by every binding
+/// that owns a simulator).
+pub(crate) fn params_from(
+    preset: &str,
+    seed: u64,
+    overrides: Option<&Bound<'_, PyDict>>,
+) -> PyResult<SimParams> {
+    let mut params = SimParams::preset(preset).map_err(to_py)?;
+    params.seed = seed;
+    if let Some(kw) = overrides {
+        for (key, value) in kw.iter() {
+            apply_override(&mut params, &key.extract::<String>()?, &value)?;
+        }
+    }
+    Ok(params)
+}
+
+fn apply_override(p: &mut SimParams, key: &str, value: &Bound<'_, PyAny>) -> PyResult<()> {
     match key {
         "c_pos" => p.c_pos = value.extract()?,
         "c_neg" => p.c_neg = value.extract()?,
@@ -127,13 +140,7 @@ impl PyEventSimulator {
         seed: u64,
         overrides: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
-        let mut params = SimParams::preset(preset).map_err(to_py)?;
-        params.seed = seed;
-        if let Some(kw) = overrides {
-            for (key, value) in kw.iter() {
-                apply_override(&mut params, &key.extract::<String>()?, &value)?;
-            }
-        }
+        let params = params_from(preset, seed, overrides)?;
         let size = |v: i64, what: &str| {
             u32::try_from(v)
                 .map_err(|_| PyValueError::new_err(format!("{what} must be in 1..=65535, got {v}")))

@@ -4,10 +4,9 @@
 use crate::camera::PyCamera;
 use crate::errors::to_py;
 use crate::model::{pose_arg, PyMesh};
-use crate::sim::{apply_override, pack_event_cd, to_event_cd};
+use crate::sim::{pack_event_cd, params_from, to_event_cd};
 use evcore::render::RenderOptions;
 use evcore::sim::camera::{Background, BackgroundPlane, SimCamera};
-use evcore::sim::SimParams;
 use evcore::EventBatch;
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2};
@@ -49,13 +48,7 @@ impl PySimCamera {
         margin_px: u32,
         overrides: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
-        let mut params = SimParams::preset(preset).map_err(to_py)?;
-        params.seed = seed;
-        if let Some(kw) = overrides {
-            for (key, value) in kw.iter() {
-                apply_override(&mut params, &key.extract::<String>()?, &value)?;
-            }
-        }
+        let params = params_from(preset, seed, overrides)?;
         let background = match T_c_bg {
             Some(m) => Background::Plane(BackgroundPlane {
                 t_c_bg: pose_arg(&m)?,
