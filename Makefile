@@ -39,6 +39,7 @@ test: test-rust test-python
 bench: setup
 	cargo bench -p evcore
 	$(BIN)/evservo bench --suite latency --out out/bench
+	$(BIN)/evservo bench --suite paper --jobs 2 --out out/bench-paper
 
 lint: $(VENV)/.deps
 	cargo fmt --all -- --check

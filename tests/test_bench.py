@@ -18,3 +18,27 @@ def test_latency_suite_quick_writes_a_complete_report(tmp_path):
         assert c["updates_per_s"] > 0, solver
     assert result["simulator"]["mev_per_s"] > 0
     assert "| rate Mev/s |" in (tmp_path / "latency.md").read_text()
+
+
+def test_paper_suite_quick_runs_end_to_end_and_every_row_has_numbers(tmp_path):
+    import re
+
+    assert main(["bench", "--suite", "paper", "--quick", "--jobs", "2", "--out", str(tmp_path)]) == 0
+    report = (tmp_path / "report.md").read_text()
+    for title in ("## Table I", "## Table II", "## Fig. 2", "feed-forward", "speed sweep", "## Fig. 5", "update rates"):
+        assert title in report, title
+    rows = [line for line in report.splitlines() if re.match(r"\| (box|drill|football) \|", line)]
+    assert len(rows) >= 12
+    for row in rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        servo, true_servo, tracking = cells[9], cells[11], cells[12]
+        for cell in (servo, true_servo, tracking):
+            assert re.fullmatch(r"\d+\.\d\d / \d+\.\d\d", cell), row
+        assert "summary.json" in cells[-1]
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert len(results["episodes"]) == 19
+    assert (tmp_path / "fig5_motion.png").stat().st_size > 10_000
+    # A rerun reuses every finished episode.
+    before = {p: p.stat().st_mtime for p in tmp_path.glob("episodes/*/summary.json")}
+    assert main(["bench", "--suite", "paper", "--quick", "--out", str(tmp_path)]) == 0
+    assert {p: p.stat().st_mtime for p in tmp_path.glob("episodes/*/summary.json")} == before

@@ -6,10 +6,18 @@ import argparse
 import os
 from pathlib import Path
 
-SUITES = ("latency",)
+SUITES = ("latency", "paper")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.jobs < 1:
+        raise ValueError("--jobs must be at least 1")
+    if args.suite == "paper":
+        from evservo.bench import paper
+
+        paper.run(Path(args.out), quick=args.quick, jobs=args.jobs)
+        print(f"wrote {Path(args.out) / 'report.md'} and results.json")
+        return 0
     from evservo.bench import latency
 
     samples = Path(os.environ.get("EVSERVO_SAMPLES", Path(__file__).resolve().parents[4] / "shared/event-samples"))
@@ -19,8 +27,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    b = sub.add_parser("bench", help="benchmark suites (latency)")
+    b = sub.add_parser("bench", help="benchmark suites: latency, paper")
     b.add_argument("--suite", choices=SUITES, default="latency")
     b.add_argument("--out", default="out/bench", help="output directory")
-    b.add_argument("--quick", action="store_true", help="short runs (for tests)")
+    b.add_argument("--quick", action="store_true", help="short runs, one seed (for tests)")
+    b.add_argument("--jobs", type=int, default=1, help="episodes run in parallel processes (paper suite)")
     b.set_defaults(func=run)

@@ -1,0 +1,241 @@
+"""The paper suite: the experiments of Section IV in simulation, with our figures beside the paper's.
+
+Rows (every one an episode of :func:`evservo.sim.episode.run_episode`, edges event source, measured
+tracker cost):
+
+- Table I: the box with EDFT⁺ (several seeds, mean ± std), EDOPTS and EDFT (registration only) at
+  Z = 0.9 m translation 0.2/0.3/0.4 m/s, Z = 0.6 m translation and Z = 0.6 m translation + rotation.
+- Table II: EDFT⁺ on the box, drill and football at Z = 0.9 m translation.
+- Fig. 5: the motion plot of the Z = 0.6 m translation run.
+- Fig. 2 in the closed loop: SCARF vs fixed-count front-end.
+- Beyond the paper: the same Table I rows with feed-forward, and a speed sweep per tracker that finds
+  the highest speed with tracking held to the end.
+
+Every episode writes its own directory (``episodes/<key>/summary.json``, ``log.csv``,
+``motion.png``); a rerun reuses finished episodes, so an interrupted run resumes.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import shutil
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import numpy as np
+
+import evservo
+from evservo.sim.episode import EpisodeConfig
+
+# (pos mm, rot °) of the paper's Table I/II: EDFT⁺ mean ± std over three runs, EDOPTS one run.
+PAPER = {
+    ("box", 0.9, "trans", "edft+"): ((20.57, 3.36), (1.85, 0.57)),
+    ("box", 0.6, "trans", "edft+"): ((22.01, 4.93), (5.68, 1.65)),
+    ("box", 0.6, "trans-rot", "edft+"): ((30.78, 2.74), (5.28, 1.00)),
+    ("box", 0.9, "trans", "edopts"): ((21.41, None), (3.63, None)),
+    ("box", 0.6, "trans", "edopts"): ((26.27, None), (8.38, None)),
+    ("box", 0.6, "trans-rot", "edopts"): ((58.20, None), (5.42, None)),
+    ("drill", 0.9, "trans", "edft+"): ((18.90, 2.30), (1.88, 0.65)),
+    ("football", 0.9, "trans", "edft+"): ((21.64, 2.61), (3.53, 0.71)),
+}
+PAPER_RATES_HZ = {"edft+": 68.0, "edopts": 107.0}
+METRICS = (
+    "servo_pos_rms_mm",
+    "servo_rot_rms_deg",
+    "gt_servo_pos_rms_mm",
+    "gt_servo_rot_rms_deg",
+    "gt_track_pos_rms_mm",
+    "gt_track_rot_rms_deg",
+    "lag_s",
+    "tracker_rate_hz",
+)
+
+
+def plan(quick: bool) -> list[tuple[str, EpisodeConfig]]:
+    """(section, config) of every episode of the suite."""
+    dur = 3.0 if quick else 20.0
+    seeds = (1,) if quick else (1, 2, 3)
+    base = EpisodeConfig(duration_s=dur)
+    table1 = [(0.9, "trans", s) for s in ((0.3,) if quick else (0.2, 0.3, 0.4))]
+    table1 += [(0.6, "trans", 0.3), (0.6, "trans-rot", 0.3)]
+    out: list[tuple[str, EpisodeConfig]] = []
+    for z, traj, v in table1:
+        for tracker in ("edft+", "edopts", "edft"):
+            for seed in seeds if tracker == "edft+" else seeds[:1]:
+                cfg = replace(base, distance_m=z, trajectory=traj, speed_mps=v, tracker=tracker, seed=seed)
+                out.append(("table1", cfg))
+                if tracker == "edft+":
+                    out.append(("feedforward", replace(cfg, feedforward=True)))
+    for obj in ("drill", "football"):
+        for seed in seeds:
+            out.append(("table2", replace(base, object=obj, seed=seed)))
+    out.append(("fig2", replace(base, frontend="fixed-count")))
+    speeds = (0.4, 0.8) if quick else (0.2, 0.4, 0.6, 0.8, 1.0, 1.2)
+    for tracker in ("edft+", "edopts"):
+        for v in speeds:
+            out.append(("sweep", replace(base, tracker=tracker, speed_mps=v, feedforward=True)))
+    return out
+
+
+def episode_key(cfg: EpisodeConfig) -> str:
+    ff = "-ff" if cfg.feedforward else ""
+    fe = "" if cfg.frontend == "scarf" else f"-{cfg.frontend}"
+    return (
+        f"{cfg.object}-z{cfg.distance_m:g}-{cfg.trajectory}-v{cfg.speed_mps:g}-{cfg.tracker}{fe}{ff}"
+        f"-s{cfg.seed}-d{cfg.duration_s:g}"
+    )
+
+
+def _run_one(cfg: EpisodeConfig, out_dir: str) -> dict:
+    from evservo.sim.episode import run_episode, summarize, write_outputs
+
+    result = run_episode(cfg)
+    summary = summarize(result)
+    write_outputs(result, out_dir, summary)
+    return summary
+
+
+def run_all(out: Path, quick: bool, jobs: int) -> list[tuple[str, str, EpisodeConfig, dict]]:
+    """Run (or reuse) every episode; returns (section, key, config, summary) per planned row. A
+    configuration that several sections share runs once."""
+    from tqdm import tqdm
+
+    rows = [(section, episode_key(cfg), cfg) for section, cfg in plan(quick)]
+    summaries: dict[str, dict] = {}
+    todo: dict[str, EpisodeConfig] = {}
+    for _, key, cfg in rows:
+        path = out / "episodes" / key / "summary.json"
+        if path.exists():
+            summaries[key] = json.loads(path.read_text())
+        else:
+            todo[key] = cfg
+    bar = tqdm(total=len(todo) + len(summaries), initial=len(summaries), unit="episode", desc="paper suite")
+    with bar, ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
+        futures = {pool.submit(_run_one, cfg, str(out / "episodes" / key)): key for key, cfg in todo.items()}
+        for fut in as_completed(futures):
+            summaries[futures[fut]] = fut.result()
+            bar.update()
+    return [(section, key, cfg, summaries[key]) for section, key, cfg in rows]
+
+
+def _fmt(values: list[float]) -> str:
+    if not values:
+        return "—"
+    if len(values) == 1:
+        return f"{values[0]:.2f}"
+    return f"{np.mean(values):.2f} ± {np.std(values, ddof=1):.2f}"
+
+
+def _paper(obj: str, z: float, traj: str, tracker: str) -> str:
+    ref = PAPER.get((obj, z, traj, tracker))
+    if ref is None:
+        return "—"
+    (p, ps), (r, rs) = ref
+    return f"{p:.2f}{f' ± {ps:.2f}' if ps else ''} / {r:.2f}{f' ± {rs:.2f}' if rs else ''}"
+
+
+def report(out: Path, episodes: list[tuple[str, str, EpisodeConfig, dict]], quick: bool, wall_s: float) -> str:
+    groups: dict[tuple, list[dict]] = {}
+    for section, key, cfg, s in episodes:
+        g = (section, cfg.object, cfg.distance_m, cfg.trajectory, cfg.speed_mps, cfg.tracker, cfg.frontend,
+             cfg.feedforward)  # fmt: skip
+        groups.setdefault(g, []).append({**s, "_key": key})
+    lines = [
+        "# evservo paper suite",
+        "",
+        f"Command: `evservo bench --suite paper{' --quick' if quick else ''} --jobs N --out {out}`; "
+        f"evservo {evservo.__version__}, Python {platform.python_version()}, {wall_s / 60:.1f} min. "
+        "Every figure links to its episode's summary.json. Simulation with ground truth; the paper's numbers "
+        "are from its real bench (no ground truth there).",
+        "",
+    ]
+
+    def table(section: str, title: str, note: str) -> None:
+        lines.extend([f"## {title}", "", note, ""])
+        lines.append(
+            "| object | Z m | trajectory | m/s | tracker | front-end | ff | runs | completed "
+            "| servo pos mm / rot ° | paper pos mm / rot ° | true servo pos mm / rot ° "
+            "| tracking pos mm / rot ° | lag s | updates/s | episodes |"
+        )
+        lines.append("|---|---:|---|---:|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---|")
+        for g in sorted(k for k in groups if k[0] == section):
+            rows = groups[g]
+            _, obj, z, traj, v, trk, fe, ff = g
+            m = {k: [r[k] for r in rows if r.get(k) is not None] for k in METRICS}
+            links = " ".join(f"[{i + 1}](episodes/{r['_key']}/summary.json)" for i, r in enumerate(rows))
+            completed = f"{sum(bool(r['completed']) for r in rows)}/{len(rows)}"
+            lines.append(
+                f"| {obj} | {z:g} | {traj} | {v:g} | {trk} | {fe} | {'yes' if ff else 'no'} | {len(rows)} "
+                f"| {completed} "
+                f"| {_fmt(m['servo_pos_rms_mm'])} / {_fmt(m['servo_rot_rms_deg'])} "
+                f"| {_paper(obj, z, traj, trk) if not ff and fe == 'scarf' else '—'} "
+                f"| {_fmt(m['gt_servo_pos_rms_mm'])} / {_fmt(m['gt_servo_rot_rms_deg'])} "
+                f"| {_fmt(m['gt_track_pos_rms_mm'])} / {_fmt(m['gt_track_rot_rms_deg'])} "
+                f"| {_fmt(m['lag_s'])} | {_fmt(m['tracker_rate_hz'])} | {links} |"
+            )
+        lines.append("")
+
+    table("table1", "Table I: the box, EDFT⁺ vs EDOPTS vs EDFT",
+          "EDFT⁺ over several seeds (mean ± std), the baselines one seed each.")  # fmt: skip
+    table("table2", "Table II: EDFT⁺ across objects, Z = 0.9 m translation",
+          "The box row is Table I's Z = 0.9 m, 0.3 m/s row.")  # fmt: skip
+    table("fig2", "Fig. 2 in the closed loop: fixed-count front-end",
+          "Compare with Table I's EDFT⁺ row at Z = 0.9 m, 0.3 m/s (SCARF).")  # fmt: skip
+    table("feedforward", "Beyond the paper: feed-forward", "Table I's EDFT⁺ rows with `--feedforward`.")
+    lines.extend(["## Beyond the paper: speed sweep (feed-forward on)", ""])
+    for trk in ("edft+", "edopts"):
+        held = sorted(cfg.speed_mps for sec, _, cfg, s in episodes
+                      if sec == "sweep" and cfg.tracker == trk and s["completed"])  # fmt: skip
+        top = max(held) if held else "—"
+        lines.append(f"- {trk}: tracking held to the end at {held or 'no'} m/s; highest {top} m/s")
+    lines.append("")
+    fig5 = [(k, s) for sec, k, cfg, s in episodes if sec == "table1" and cfg.distance_m == 0.6
+            and cfg.trajectory == "trans" and cfg.tracker == "edft+" and cfg.seed == 1]  # fmt: skip
+    if fig5:
+        key, s = fig5[0]
+        shutil.copy(out / "episodes" / key / "motion.png", out / "fig5_motion.png")
+        lines += [
+            "## Fig. 5: camera and target motion, Z = 0.6 m translation",
+            "",
+            f"![Fig. 5](fig5_motion.png) camera lag {s['lag_s']:.3f} s (paper ≈ 0.15 s); camera rotation mean "
+            f"{s['camera_rot_mean_deg']:.2f}° (paper 1.89°).",
+            "",
+        ]
+    rates = {}
+    for _, _, cfg, s in episodes:
+        rates.setdefault(cfg.tracker, []).append(s["tracker_rate_hz"])
+    lines += ["## Tracker update rates in the loop", "", "| tracker | ours (updates/s of solver time) | paper |",
+              "|---|---:|---:|"]  # fmt: skip
+    for trk, r in sorted(rates.items()):
+        paper = PAPER_RATES_HZ.get(trk)
+        lines.append(f"| {trk} | {np.mean(r):.0f} | {f'{paper:g} Hz' if paper else '—'} |")
+    lines += [
+        "",
+        "## Where we differ from the paper",
+        "",
+        "- Without feed-forward the camera lags a ramp by ≈ 2/√k ≈ 0.45 s under the bare law of Eq. (6) with "
+        "k = 20; the paper's mc_rtc loop lags ≈ 0.15 s, so our servo errors are larger. Nothing is tuned to match.",
+        "- Rows marked completed < runs lost tracking; see the episode's summary.json for when.",
+        "",
+    ]
+    text = "\n".join(lines) + "\n"
+    (out / "report.md").write_text(text)
+    return text
+
+
+def run(out: Path, quick: bool = False, jobs: int = 1) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    episodes = run_all(out, quick, jobs)
+    wall = time.perf_counter() - t0
+    report(out, episodes, quick, wall)
+    results = {
+        "command": f"evservo bench --suite paper{' --quick' if quick else ''} --jobs {jobs} --out {out}",
+        "evservo": evservo.__version__,
+        "episodes": [{"section": sec, "key": k, "config": asdict(cfg), "summary": s} for sec, k, cfg, s in episodes],
+    }
+    (out / "results.json").write_text(json.dumps(results, indent=2, default=float))
+    return results
