@@ -32,7 +32,7 @@ test-rust:
 	cargo test -p evcore
 
 test-python: setup
-	$(BIN)/python -m pytest -q
+	PYTHONUNBUFFERED=1 $(BIN)/python -m pytest -q
 
 test: test-rust test-python
 

@@ -18,6 +18,7 @@ Every episode writes its own directory (``episodes/<key>/summary.json``, ``log.c
 from __future__ import annotations
 
 import json
+import multiprocessing
 import platform
 import shutil
 import time
@@ -113,11 +114,20 @@ def run_all(out: Path, quick: bool, jobs: int) -> list[tuple[str, str, EpisodeCo
         else:
             todo[key] = cfg
     bar = tqdm(total=len(todo) + len(summaries), initial=len(summaries), unit="episode", desc="paper suite")
-    with bar, ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
-        futures = {pool.submit(_run_one, cfg, str(out / "episodes" / key)): key for key, cfg in todo.items()}
-        for fut in as_completed(futures):
-            summaries[futures[fut]] = fut.result()
-            bar.update()
+    with bar:
+        if jobs <= 1:
+            for key, cfg in todo.items():
+                summaries[key] = _run_one(cfg, str(out / "episodes" / key))
+                bar.update()
+        else:
+            # Workers are spawned, not forked: a fork copies rayon's global pool without its threads, and the
+            # child's first parallel call then waits forever for workers that do not exist.
+            ctx = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+                futures = {pool.submit(_run_one, cfg, str(out / "episodes" / key)): key for key, cfg in todo.items()}
+                for fut in as_completed(futures):
+                    summaries[futures[fut]] = fut.result()
+                    bar.update()
     return [(section, key, cfg, summaries[key]) for section, key, cfg in rows]
 
 
