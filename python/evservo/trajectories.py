@@ -5,9 +5,10 @@ applied on the left of the start pose, ``T(t) = D(t) · T(0)`` with the rotation
 object's own start position, so a rotating object spins in place rather than swinging around the
 origin. For open-loop recordings the frame is the camera's; in the closed loop it is the world.
 
-Kinds (peak translational speed ``speed_mps``, peak angular rate ``rot_rate_dps``):
+Kinds (peak speed along x ``speed_mps``, peak angular rate ``rot_rate_dps``):
 - ``trans``: back and forth along x with a smaller y component (a flattened figure of eight).
-- ``trans-rot``: ``trans`` plus oscillating rotations about all three axes.
+- ``trans-rot``: ``trans`` plus oscillating rotations about all three axes (peak rate ``rot_rate_dps``
+  about y, about 0.8× that about x and z).
 - ``circle``: a circle in the x–y plane.
 - ``figure8``: a Lissajous figure of eight in the x–y plane.
 - ``stop-go``: moves along x for the first half, then stands still (where activity-based
@@ -69,7 +70,7 @@ def make_trajectory(
             trans = np.stack([x, zeros, zeros], axis=1)
         if rot_amp > 0:
             rot = np.stack(
-                [rot_amp * np.sin(0.8 * w * t), rot_amp * np.sin(w * t + 1.0), 0.6 * rot_amp * np.sin(1.3 * w * t)],
+                [rot_amp * np.sin(0.8 * w * t), rot_amp * np.sin(w * t), 0.6 * rot_amp * np.sin(1.3 * w * t)],
                 axis=1,
             )
         else:
