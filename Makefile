@@ -38,8 +38,9 @@ test: test-rust test-python
 
 bench: setup
 	cargo bench -p evcore
-	$(BIN)/evservo bench --suite latency --out out/bench
-	$(BIN)/evservo bench --suite paper --jobs 2 --out out/bench-paper
+	$(BIN)/python -m evservo.bench.results criterion target/criterion benches/RESULTS.md
+	$(BIN)/evservo bench --suite latency --out out/bench --results benches/RESULTS.md
+	$(BIN)/evservo bench --suite paper --jobs 2 --out out/bench-paper --results benches/RESULTS.md
 
 lint: $(VENV)/.deps
 	cargo fmt --all -- --check

@@ -7,7 +7,9 @@ from evservo.cli import main
 
 
 def test_latency_suite_quick_writes_a_complete_report(tmp_path):
-    assert main(["bench", "--suite", "latency", "--quick", "--out", str(tmp_path)]) == 0
+    results_md = tmp_path / "RESULTS.md"
+    results_md.write_text("# Measured figures\n\nhand-written analysis\n")
+    assert main(["bench", "--suite", "latency", "--quick", "--out", str(tmp_path), "--results", str(results_md)]) == 0
     result = json.loads((tmp_path / "latency.json").read_text())
     rows = result["latency"]
     assert {r["rate_mev_s"] for r in rows} == {5.0, 20.0}
@@ -18,6 +20,9 @@ def test_latency_suite_quick_writes_a_complete_report(tmp_path):
         assert c["updates_per_s"] > 0, solver
     assert result["simulator"]["mev_per_s"] > 0
     assert "| rate Mev/s |" in (tmp_path / "latency.md").read_text()
+    refreshed = results_md.read_text()
+    assert "hand-written analysis" in refreshed and "<!-- bench:latency -->" in refreshed
+    assert "| rate Mev/s |" in refreshed and "Command: `evservo bench --suite latency --quick" in refreshed
 
 
 def test_paper_suite_quick_runs_end_to_end_and_every_row_has_numbers(tmp_path):

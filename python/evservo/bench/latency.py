@@ -176,7 +176,11 @@ def run(out: Path, quick: bool = False, samples: Path | None = None) -> dict:
     if samples is not None and samples.exists():
         result["decode_mev_per_s"] = {p.name: decode_throughput(p) for p in sorted(samples.glob("*.raw"))}
     (out / "latency.json").write_text(json.dumps(result, indent=2))
+    m = result["machine"]
     lines = [
+        f"Command: `{result['command']} --out {out}`; evservo {m['evservo']}, Python {m['python']}, {m['cpus']} CPUs; "
+        f"{duration:g} s per run, events replayed in real time into the threaded tracker.",
+        "",
         "| rate Mev/s | solver | updates/s | latency p50 ms | p99 ms | dropped/pushed | end error mm |",
         "|---:|---|---:|---:|---:|---:|---:|",
     ]

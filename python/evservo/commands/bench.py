@@ -17,13 +17,25 @@ def run(args: argparse.Namespace) -> int:
 
         paper.run(Path(args.out), quick=args.quick, jobs=args.jobs)
         print(f"wrote {Path(args.out) / 'report.md'} and results.json")
+        _refresh(args, "paper", Path(args.out) / "report.md")
         return 0
     from evservo.bench import latency
 
     samples = Path(os.environ.get("EVSERVO_SAMPLES", Path(__file__).resolve().parents[4] / "shared/event-samples"))
     latency.run(Path(args.out), quick=args.quick, samples=samples)
     print(f"wrote {Path(args.out) / 'latency.md'} and latency.json")
+    _refresh(args, "latency", Path(args.out) / "latency.md")
     return 0
+
+
+def _refresh(args: argparse.Namespace, section: str, report: Path) -> None:
+    """Copy the suite's report into the results file's generated section, if one was named."""
+    if args.results is None:
+        return
+    from evservo.bench.results import embed_report, splice
+
+    splice(Path(args.results), section, embed_report(report.read_text(), report.parent))
+    print(f"refreshed the {section} section of {args.results}")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -32,4 +44,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--out", default="out/bench", help="output directory")
     b.add_argument("--quick", action="store_true", help="short runs, one seed (for tests)")
     b.add_argument("--jobs", type=int, default=1, help="episodes run in parallel processes (paper suite)")
+    b.add_argument(
+        "--results",
+        metavar="MD",
+        help="also replace this suite's generated section of a results file (make bench: benches/RESULTS.md)",
+    )
     b.set_defaults(func=run)

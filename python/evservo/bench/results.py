@@ -1,0 +1,99 @@
+"""Keep ``benches/RESULTS.md`` in step with the last benchmark run.
+
+Generated sections sit between marker comments ``<!-- bench:NAME -->`` and ``<!-- /bench:NAME -->``;
+:func:`splice` replaces what lies between them and leaves every hand-written line alone, so a
+``make bench`` run refreshes the figures without touching the analysis around them. A section whose
+markers are missing is appended at the end.
+
+Command line (what ``make bench`` calls after ``cargo bench``)::
+
+    python -m evservo.bench.results criterion target/criterion benches/RESULTS.md
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+
+
+def _markers(name: str) -> tuple[str, str]:
+    if not re.fullmatch(r"[a-z0-9_-]+", name):
+        raise ValueError(f"section name must be lower-case letters, digits, '-' or '_': {name!r}")
+    return f"<!-- bench:{name} -->", f"<!-- /bench:{name} -->"
+
+
+def splice(path: Path, name: str, body: str) -> None:
+    """Replace section ``name`` of the markdown file ``path`` with ``body`` (created if absent)."""
+    begin, end = _markers(name)
+    text = path.read_text() if path.exists() else ""
+    block = f"{begin}\n{body.strip()}\n{end}"
+    i, j = text.find(begin), text.find(end)
+    if (i < 0) != (j < 0) or j < i:
+        raise ValueError(f"{path}: markers of section {name!r} are unpaired or out of order")
+    if i < 0:
+        text = (text.rstrip() + "\n\n" if text.strip() else "") + block + "\n"
+    else:
+        text = text[:i] + block + text[j + len(end) :]
+    path.write_text(text)
+
+
+def embed_report(report_md: str, source_dir: Path) -> str:
+    """A suite's report made fit for RESULTS.md: headings one level down (RESULTS.md owns the top
+    levels) and images, which live in the untracked output directory, turned into their paths."""
+    lines = []
+    for line in report_md.splitlines():
+        if line.startswith("#"):
+            line = "#" + line
+        image = re.fullmatch(r"!\[([^\]]*)\]\(([^)]+)\)", line.strip())
+        if image:
+            line = f"Plot ({image[1] or 'figure'}): `{source_dir / image[2]}`"
+        lines.append(line)
+    return "\n".join(lines)
+
+
+def _human_time(ns: float) -> str:
+    for unit, scale in (("s", 1e9), ("ms", 1e6), ("µs", 1e3)):
+        if ns >= scale:
+            return f"{ns / scale:.3g} {unit}"
+    return f"{ns:.3g} ns"
+
+
+def criterion_table(root: Path) -> str:
+    """Markdown table of every criterion benchmark's latest mean (and throughput) under ``root``
+    (``target/criterion``)."""
+    rows = []
+    for meta in sorted(root.glob("**/new/benchmark.json")):
+        info = json.loads(meta.read_text())
+        est = json.loads((meta.parent / "estimates.json").read_text())
+        mean_ns = est["mean"]["point_estimate"]
+        half_ns = 0.5 * (
+            est["mean"]["confidence_interval"]["upper_bound"] - est["mean"]["confidence_interval"]["lower_bound"]
+        )
+        rate = ""
+        throughput = info.get("throughput") or {}
+        if "Elements" in throughput:
+            rate = f"{throughput['Elements'] / mean_ns * 1e3:.1f} M elements/s"
+        elif "Bytes" in throughput:
+            rate = f"{throughput['Bytes'] / mean_ns * 1e3:.0f} MB/s"
+        rows.append(f"| `{info['full_id']}` | {_human_time(mean_ns)} ± {_human_time(half_ns)} | {rate} |")
+    if not rows:
+        raise FileNotFoundError(f"no criterion results under {root}; run `cargo bench -p evcore` first")
+    return "\n".join(["| benchmark | mean (95 % CI half-width) | throughput |", "|---|---:|---:|", *rows])
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 3 or args[0] != "criterion":
+        print("usage: python -m evservo.bench.results criterion CRITERION_DIR RESULTS_MD", file=sys.stderr)
+        return 2
+    root, results = Path(args[1]), Path(args[2])
+    body = f"Command: `make bench` (`cargo bench -p evcore`), read from `{root}` by `evservo.bench.results`.\n\n"
+    splice(results, "criterion", body + criterion_table(root))
+    print(f"refreshed the criterion section of {results}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
