@@ -28,10 +28,14 @@ def test_splice_refuses_unpaired_markers(tmp_path):
         splice(md, "Paper Suite", "x")
 
 
-def test_embed_report_demotes_headings_and_turns_images_into_paths(tmp_path):
-    text = embed_report("# Suite\n\n## Table I\n\n![Fig. 5](fig5_motion.png)\n| a |", tmp_path)
+def test_embed_report_demotes_headings_and_reroots_links_and_images(tmp_path):
+    out, results_dir = tmp_path / "out" / "paper", tmp_path / "benches"
+    md = "# Suite\n\n## Table I\n\n![Fig. 5](fig5_motion.png) lag 0.4 s\n| a | [1](episodes/k/summary.json) |"
+    text = embed_report(md, out, results_dir)
     assert text.splitlines()[0] == "## Suite" and "### Table I" in text
-    assert f"`{tmp_path / 'fig5_motion.png'}`" in text and "![" not in text
+    assert "(plot: `../out/paper/fig5_motion.png`) lag 0.4 s" in text and "![" not in text
+    assert "[1](../out/paper/episodes/k/summary.json)" in text
+    assert embed_report("[docs](https://x.org/a)", out, results_dir) == "[docs](https://x.org/a)"
 
 
 def test_criterion_table_reads_means_and_throughput(tmp_path):

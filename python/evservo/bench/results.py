@@ -13,6 +13,7 @@ Command line (what ``make bench`` calls after ``cargo bench``)::
 from __future__ import annotations
 
 import json
+import os
 import re
 import sys
 from pathlib import Path
@@ -39,17 +40,25 @@ def splice(path: Path, name: str, body: str) -> None:
     path.write_text(text)
 
 
-def embed_report(report_md: str, source_dir: Path) -> str:
-    """A suite's report made fit for RESULTS.md: headings one level down (RESULTS.md owns the top
-    levels) and images, which live in the untracked output directory, turned into their paths."""
+def embed_report(report_md: str, source_dir: Path, results_dir: Path) -> str:
+    """A suite's report made fit for a results file in ``results_dir``: headings one level down (the
+    results file owns the top levels), relative links re-rooted at the suite's output directory
+    ``source_dir``, and images, which live in that untracked directory, turned into their paths."""
+    root = Path(os.path.relpath(source_dir, results_dir))
+
+    def image(m: re.Match) -> str:
+        return f"(plot: `{root / m[2]}`)"
+
+    def link(m: re.Match) -> str:
+        target = m[2]
+        return m[0] if re.match(r"[a-z]+:|/|#", target) else f"[{m[1]}]({(root / target).as_posix()})"
+
     lines = []
     for line in report_md.splitlines():
         if line.startswith("#"):
             line = "#" + line
-        image = re.fullmatch(r"!\[([^\]]*)\]\(([^)]+)\)", line.strip())
-        if image:
-            line = f"Plot ({image[1] or 'figure'}): `{source_dir / image[2]}`"
-        lines.append(line)
+        line = re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", image, line)
+        lines.append(re.sub(r"(?<!!)\[([^\]]*)\]\(([^)]+)\)", link, line))
     return "\n".join(lines)
 
 

@@ -34,7 +34,8 @@ def _refresh(args: argparse.Namespace, section: str, report: Path) -> None:
         return
     from evservo.bench.results import embed_report, splice
 
-    splice(Path(args.results), section, embed_report(report.read_text(), report.parent))
+    results = Path(args.results)
+    splice(results, section, embed_report(report.read_text(), report.parent, results.parent))
     print(f"refreshed the {section} section of {args.results}")
 
 
