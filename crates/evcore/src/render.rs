@@ -87,6 +87,8 @@ struct Tri {
     /// Per-vertex albedo in `[0]` or UV, depending on the mesh's shading.
     attr: [[f32; 2]; 3],
     normal_c: [f32; 3],
+    /// Index of the triangle's mesh in the rendered scene.
+    mesh: u32,
     /// Inclusive pixel bounds, already clipped to the region.
     x_lo: i64,
     x_hi: i64,
@@ -159,7 +161,13 @@ fn clip_near(tri: [ClipVertex; 3], out: &mut [ClipVertex; 4]) -> usize {
 
 /// Edge-function setup of a projected triangle; `None` when it has no area on screen or misses
 /// the region `[rx0, rx1] × [ry0, ry1]` (inclusive pixel bounds).
-fn setup(cam: &Camera, v: [ClipVertex; 3], normal_c: [f32; 3], bounds: [i64; 4]) -> Option<Tri> {
+fn setup(
+    cam: &Camera,
+    v: [ClipVertex; 3],
+    normal_c: [f32; 3],
+    mesh: u32,
+    bounds: [i64; 4],
+) -> Option<Tri> {
     let s: [(f64, f64); 3] = v.map(|c| {
         (
             cam.fx * c.p.x / c.p.z + cam.cx,
@@ -191,6 +199,7 @@ fn setup(cam: &Camera, v: [ClipVertex; 3], normal_c: [f32; 3], bounds: [i64; 4])
         inv_z: v.map(|c| 1.0 / c.p.z),
         attr: v.map(|c| c.attr),
         normal_c,
+        mesh,
         x_lo,
         x_hi,
         y_lo,
@@ -231,6 +240,20 @@ impl Renderer {
         roi: Option<Roi>,
         opts: &RenderOptions,
     ) -> Result<&Rendered> {
+        self.render_scene_into(&[(mesh, t_c_o)], camera, roi, opts)
+    }
+
+    /// Render several meshes, each at its own pose in the camera, into one intensity and depth
+    /// buffer: the nearest surface wins each pixel (a z-test across meshes, e.g. the object and
+    /// the arms occluding it). Shading is per mesh; `opts` applies to all. An empty scene renders
+    /// background only.
+    pub fn render_scene_into(
+        &mut self,
+        scene: &[(&Mesh, &Pose)],
+        camera: &Camera,
+        roi: Option<Roi>,
+        opts: &RenderOptions,
+    ) -> Result<&Rendered> {
         let roi = roi.unwrap_or(Roi::full(camera.width, camera.height));
         ensure(roi.width > 0 && roi.height > 0, || {
             format!("render region {roi:?} is empty")
@@ -259,27 +282,26 @@ impl Renderer {
                 )
             },
         )?;
-        let finite_pose = t_c_o
-            .translation
-            .vector
-            .iter()
-            .chain(t_c_o.rotation.coords.iter())
-            .all(|v| v.is_finite());
-        ensure(finite_pose, || {
-            "pose T_c_o contains NaN or infinite entries".into()
-        })?;
+        for (_, t_c_o) in scene {
+            let finite_pose = t_c_o
+                .translation
+                .vector
+                .iter()
+                .chain(t_c_o.rotation.coords.iter())
+                .all(|v| v.is_finite());
+            ensure(finite_pose, || {
+                "pose T_c_o contains NaN or infinite entries".into()
+            })?;
+        }
         ensure(
             [opts.ambient, opts.diffuse, opts.background]
                 .iter()
                 .all(|v| v.is_finite()),
             || format!("render options must be finite, got {opts:?}"),
         )?;
-
-        self.verts_c.clear();
-        self.verts_c
-            .par_extend(mesh.vertices.par_iter().with_min_len(1024).map(|v| {
-                (t_c_o * Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]))).coords
-            }));
+        ensure(u32::try_from(scene.len()).is_ok(), || {
+            "too many meshes in the scene".into()
+        })?;
 
         let bounds = [
             i64::from(roi.x0),
@@ -287,36 +309,52 @@ impl Renderer {
             i64::from(roi.y0),
             i64::from(roi.y0 + roi.height) - 1,
         ];
-        let attr_of = |k: usize| -> [f32; 2] {
-            match &mesh.shading {
-                Shading::Constant(_) => [0.0, 0.0],
-                Shading::VertexIntensity(a) => [a[k], 0.0],
-                Shading::Textured { uv, .. } => uv[k],
-            }
-        };
-        let verts_c = &self.verts_c;
         self.tris.clear();
-        self.tris
-            .par_extend(mesh.faces.par_iter().with_min_len(256).flat_map_iter(|f| {
-                let v = f.map(|k| ClipVertex {
-                    p: verts_c[k as usize],
-                    attr: attr_of(k as usize),
-                });
-                let mut n = (v[1].p - v[0].p).cross(&(v[2].p - v[0].p));
-                let mut out = [v[0]; 4];
-                let count = match n.try_normalize(0.0) {
-                    Some(unit) if v.iter().any(|c| c.p.z >= NEAR_PLANE_M) => {
-                        // Face the camera: the view ray to the face is +p, so n·p must be negative.
-                        n = if unit.dot(&v[0].p) > 0.0 { -unit } else { unit };
-                        clip_near(v, &mut out)
-                    }
-                    _ => 0,
-                };
-                let normal = [n.x as f32, n.y as f32, n.z as f32];
-                (1..count.saturating_sub(1)).filter_map(move |i| {
-                    setup(camera, [out[0], out[i], out[i + 1]], normal, bounds)
-                })
-            }));
+        for (mesh_id, &(mesh, t_c_o)) in scene.iter().enumerate() {
+            let mesh_id = mesh_id as u32;
+            self.verts_c.clear();
+            self.verts_c
+                .par_extend(mesh.vertices.par_iter().with_min_len(1024).map(|v| {
+                    (t_c_o * Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]))).coords
+                }));
+            let attr_of = |k: usize| -> [f32; 2] {
+                match &mesh.shading {
+                    Shading::Constant(_) => [0.0, 0.0],
+                    Shading::VertexIntensity(a) => [a[k], 0.0],
+                    Shading::Textured { uv, .. } => uv[k],
+                }
+            };
+            let verts_c = &self.verts_c;
+            self.tris
+                .par_extend(mesh.faces.par_iter().with_min_len(256).flat_map_iter(|f| {
+                    let v = f.map(|k| ClipVertex {
+                        p: verts_c[k as usize],
+                        attr: attr_of(k as usize),
+                    });
+                    let mut n = (v[1].p - v[0].p).cross(&(v[2].p - v[0].p));
+                    let mut out = [v[0]; 4];
+                    let count = match n.try_normalize(0.0) {
+                        Some(unit) if v.iter().any(|c| c.p.z >= NEAR_PLANE_M) => {
+                            // Face the camera: the view ray to the face is +p, so n·p must be
+                            // negative.
+                            n = if unit.dot(&v[0].p) > 0.0 { -unit } else { unit };
+                            clip_near(v, &mut out)
+                        }
+                        _ => 0,
+                    };
+                    let normal = [n.x as f32, n.y as f32, n.z as f32];
+                    (1..count.saturating_sub(1)).filter_map(move |i| {
+                        setup(
+                            camera,
+                            [out[0], out[i], out[i + 1]],
+                            normal,
+                            mesh_id,
+                            bounds,
+                        )
+                    })
+                }));
+        }
+        let meshes: Vec<&Mesh> = scene.iter().map(|(m, _)| *m).collect();
 
         let (w, h) = (roi.width as usize, roi.height as usize);
         let n_bands = h.div_ceil(BAND_ROWS);
@@ -363,7 +401,7 @@ impl Renderer {
                 };
                 rasterize_band(tris, &bins[band], &band_bounds, depth, ids);
                 shade_band(
-                    mesh,
+                    &meshes,
                     camera,
                     opts,
                     tris,
@@ -418,7 +456,7 @@ fn rasterize_band(tris: &[Tri], bin: &[u32], band: &Band, inv_z: &mut [f32], ids
 /// barycentrics are stepped along the row instead of re-evaluated.
 #[allow(clippy::too_many_arguments)]
 fn shade_band(
-    mesh: &Mesh,
+    meshes: &[&Mesh],
     cam: &Camera,
     opts: &RenderOptions,
     tris: &[Tri],
@@ -451,7 +489,7 @@ fn shade_band(
                     depth: &mut depth[run.clone()],
                     intensity: &mut intensity[run.clone()],
                 };
-                match &mesh.shading {
+                match &meshes[t.mesh as usize].shading {
                     Shading::Constant(a) => shade_run(cam, opts, t, x0, y, out, |_| *a),
                     Shading::VertexIntensity(_) => shade_run(cam, opts, t, x0, y, out, |a| a[0]),
                     Shading::Textured { texture, .. } => {
@@ -786,6 +824,53 @@ mod tests {
         let behind = Isometry3::translation(0.0, 0.0, -3.0);
         let r = render(&mesh, &cam, &behind, None, &RenderOptions::default()).unwrap();
         assert!(r.depth_m.iter().all(|d| d.is_infinite()));
+    }
+
+    #[test]
+    fn scene_render_z_tests_across_meshes() {
+        // A bright far cube and a dark near cube partly in front of it: every pixel of the scene
+        // render is the nearer of the two single-mesh renders, with that mesh's shading.
+        let cam = cam();
+        let far = cube(0.3, Shading::Constant(1.0));
+        let near = cube(0.1, Shading::Constant(0.2));
+        let (p_far, p_near) = (pose(), Isometry3::translation(0.08, 0.0, 0.7));
+        let opts = RenderOptions::default();
+        let a = render(&far, &cam, &p_far, None, &opts).unwrap();
+        let b = render(&near, &cam, &p_near, None, &opts).unwrap();
+        let mut r = Renderer::new();
+        let both = r
+            .render_scene_into(&[(&far, &p_far), (&near, &p_near)], &cam, None, &opts)
+            .unwrap();
+        let (mut overlap, mut n) = (0, 0);
+        for i in 0..both.depth_m.len() {
+            let (da, db) = (a.depth_m[i], b.depth_m[i]);
+            let want = if db <= da { &b } else { &a };
+            assert_eq!(both.depth_m[i], want.depth_m[i], "pixel {i}");
+            assert_eq!(both.intensity[i], want.intensity[i], "pixel {i}");
+            overlap += usize::from(da.is_finite() && db.is_finite());
+            n += usize::from(both.depth_m[i].is_finite());
+        }
+        assert!(
+            overlap > 500,
+            "the near cube hides part of the far one ({overlap})"
+        );
+        assert!(n > overlap);
+        // The order of the meshes does not matter.
+        let swapped = r
+            .render_scene_into(&[(&near, &p_near), (&far, &p_far)], &cam, None, &opts)
+            .unwrap();
+        assert_eq!(swapped.depth_m, both_depth(&a, &b));
+        // An empty scene is all background.
+        let empty = r.render_scene_into(&[], &cam, None, &opts).unwrap();
+        assert!(empty.depth_m.iter().all(|d| d.is_infinite()));
+    }
+
+    fn both_depth(a: &Rendered, b: &Rendered) -> Vec<f32> {
+        a.depth_m
+            .iter()
+            .zip(&b.depth_m)
+            .map(|(x, y)| x.min(*y))
+            .collect()
     }
 
     #[test]

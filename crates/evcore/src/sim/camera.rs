@@ -26,6 +26,10 @@
 //!   noise-free parameters it gives exactly the events of a full-frame step (tested); with noise,
 //!   pixels outside the region emit no noise (see the simulator's ROI notes). A new background
 //!   pose, a vertex at or behind the near plane, or the first frame force a full frame.
+//! * **Occluders.** Further meshes (e.g. the robot arms) set by [`SimCamera::set_occluders`] and
+//!   posed per frame in [`SimCamera::advance_scene`] are rendered with the object into one
+//!   z-tested buffer, shaded like the object. An occluder whose pose changed since the previous
+//!   frame adds its vertices at both poses to the region; one unmoved is still drawn inside it.
 
 use crate::camera::Camera;
 use crate::error::{ensure, Result};
@@ -150,6 +154,9 @@ pub struct SimCamera {
     /// Canvas position (x, y) of each raw pixel, row-major; NaN where the pixel sees nothing.
     map: Vec<[f32; 2]>,
     mesh: Arc<Mesh>,
+    /// Further meshes drawn with the object (z-tested), and their poses at the previous frame.
+    occluders: Vec<Arc<Mesh>>,
+    prev_occluder_poses: Vec<Pose>,
     renderer: Renderer,
     opts: RenderOptions,
     background: Background,
@@ -218,6 +225,8 @@ impl SimCamera {
             canvas,
             map,
             mesh,
+            occluders: Vec::new(),
+            prev_occluder_poses: Vec::new(),
             renderer: Renderer::new(),
             opts: RenderOptions {
                 background: 0.0,
@@ -261,6 +270,20 @@ impl SimCamera {
         self.background
     }
 
+    /// The occluder meshes, in the order their poses are given to [`Self::advance_scene`].
+    pub fn occluders(&self) -> &[Arc<Mesh>] {
+        &self.occluders
+    }
+
+    /// Replace the occluders (meshes drawn with the object and z-tested against it, e.g. the
+    /// robot arms); each [`Self::advance_scene`] then poses every one of them. The next frame
+    /// is a full frame.
+    pub fn set_occluders(&mut self, meshes: Vec<Arc<Mesh>>) {
+        self.occluders = meshes;
+        self.prev_occluder_poses.clear();
+        self.prev_pose = None;
+    }
+
     /// Largest raw-pixel displacement of any mesh vertex between poses `a` and `b` (both object
     /// in camera). Vertices at or behind the near plane in either pose count as infinitely far,
     /// so a caller sub-dividing by this never skips past a crossing of the camera plane.
@@ -283,12 +306,79 @@ impl SimCamera {
             .reduce(|| 0.0, f64::max)
     }
 
+    /// Largest raw-pixel displacement of the occluders' visible vertices between their poses
+    /// `a` and `b` (one per occluder, in camera). Unlike [`Self::max_displacement_px`] it skips
+    /// what cannot be seen in either pose: vertices at or behind the near plane in either pose
+    /// (parts of an arm passing behind the camera are clipped, not bounded) and vertices outside
+    /// the canvas in both. A vertex whose distorted projection fails counts by its pinhole motion.
+    /// 0 with no occluders.
+    pub fn occluder_displacement_px(&self, a: &[Pose], b: &[Pose]) -> Result<f64> {
+        let n = self.occluders.len();
+        ensure(a.len() == n && b.len() == n, || {
+            format!(
+                "{n} occluders need {n} poses each, got {} and {}",
+                a.len(),
+                b.len()
+            )
+        })?;
+        let (cam, canvas) = (&self.camera, &self.canvas);
+        let (w, h) = (f64::from(canvas.width), f64::from(canvas.height));
+        let pin = |p: &Vector3<f64>| {
+            (
+                canvas.fx * p.x / p.z + canvas.cx,
+                canvas.fy * p.y / p.z + canvas.cy,
+            )
+        };
+        let inside = |(u, v): (f64, f64)| u >= -1.0 && v >= -1.0 && u <= w && v <= h;
+        let worst = self
+            .occluders
+            .iter()
+            .zip(a.iter().zip(b))
+            .filter(|(_, (pa, pb))| pa != pb)
+            .map(|(mesh, (pa, pb))| {
+                mesh.vertices
+                    .par_iter()
+                    .with_min_len(512)
+                    .map(|v| {
+                        let p = Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]));
+                        let (qa, qb) = ((pa * p).coords, (pb * p).coords);
+                        if qa.z <= NEAR_PLANE_M || qb.z <= NEAR_PLANE_M {
+                            return 0.0;
+                        }
+                        let (sa, sb) = (pin(&qa), pin(&qb));
+                        if !inside(sa) && !inside(sb) {
+                            return 0.0;
+                        }
+                        match (cam.project(&qa), cam.project(&qb)) {
+                            (Some((ua, va)), Some((ub, vb))) => (ua - ub).hypot(va - vb),
+                            _ => (sa.0 - sb.0).hypot(sa.1 - sb.1),
+                        }
+                    })
+                    .reduce(|| 0.0, f64::max)
+            })
+            .fold(0.0, f64::max);
+        Ok(worst)
+    }
+
     /// Render the object at `t_c_o` (and the background, moved to `t_c_bg` if given) at time
     /// `t_us`, step the sensor and put the interval's events in `out` (cleared first). The first
     /// call only initialises the sensor and yields no events. Times must increase strictly.
+    /// With occluders set, use [`Self::advance_scene`].
     pub fn advance(
         &mut self,
         t_c_o: &Pose,
+        t_us: i64,
+        t_c_bg: Option<&Pose>,
+        out: &mut EventBatch,
+    ) -> Result<FrameInfo> {
+        self.advance_scene(t_c_o, &[], t_us, t_c_bg, out)
+    }
+
+    /// [`Self::advance`] with the occluders at `occluder_poses` (one per occluder, in camera).
+    pub fn advance_scene(
+        &mut self,
+        t_c_o: &Pose,
+        occluder_poses: &[Pose],
         t_us: i64,
         t_c_bg: Option<&Pose>,
         out: &mut EventBatch,
@@ -301,6 +391,16 @@ impl SimCamera {
                 .all(|v| v.is_finite())
         };
         ensure(finite(t_c_o), || "pose T_c_o must be finite".into())?;
+        ensure(occluder_poses.len() == self.occluders.len(), || {
+            format!(
+                "{} occluders need as many poses, got {}",
+                self.occluders.len(),
+                occluder_poses.len()
+            )
+        })?;
+        ensure(occluder_poses.iter().all(finite), || {
+            "occluder poses must be finite".into()
+        })?;
         if let Some(t) = self.sim.time_us() {
             ensure(t_us > t, || {
                 format!("frame time {t_us} µs is not after the previous frame at {t} µs")
@@ -328,7 +428,7 @@ impl SimCamera {
             self.cache_background();
         }
         let region = match self.prev_pose {
-            Some(prev) if !moved_background => self.changed_region(&prev, t_c_o),
+            Some(prev) if !moved_background => self.changed_region(&prev, t_c_o, occluder_poses),
             _ => Region::Full,
         };
         let info = match region {
@@ -336,6 +436,7 @@ impl SimCamera {
                 let full = Roi::full(self.camera.width, self.camera.height);
                 self.render_raw(
                     t_c_o,
+                    occluder_poses,
                     full,
                     Roi::full(self.canvas.width, self.canvas.height),
                 )?;
@@ -346,7 +447,7 @@ impl SimCamera {
                 }
             }
             Region::Part { raw, canvas } => {
-                self.render_raw(t_c_o, raw, canvas)?;
+                self.render_raw(t_c_o, occluder_poses, raw, canvas)?;
                 self.step_roi(raw, t_us, out)?;
                 FrameInfo {
                     roi: raw,
@@ -370,6 +471,8 @@ impl SimCamera {
             }
         };
         self.prev_pose = Some(*t_c_o);
+        self.prev_occluder_poses.clear();
+        self.prev_occluder_poses.extend_from_slice(occluder_poses);
         self.last = Some(info);
         Ok(info)
     }
@@ -406,11 +509,21 @@ impl SimCamera {
         self.sim.step_roi(&self.roi_buf, roi, t_us, out)
     }
 
-    /// The raw and canvas regions that can change between the object at `prev` and at `cur`.
-    fn changed_region(&self, prev: &Pose, cur: &Pose) -> Region {
+    /// The raw and canvas regions that can change between the object at `prev` and at `cur`
+    /// and the occluders at their previous poses and at `occluders`.
+    fn changed_region(&self, prev: &Pose, cur: &Pose, occluders: &[Pose]) -> Region {
         let mut pts = Vec::with_capacity(2 * self.mesh.vertices.len());
-        for pose in [prev, cur] {
-            for v in &self.mesh.vertices {
+        let moved = self
+            .occluders
+            .iter()
+            .zip(self.prev_occluder_poses.iter().zip(occluders))
+            .filter(|(_, (a, b))| a != b)
+            .flat_map(|(m, (a, b))| [(m.as_ref(), a), (m.as_ref(), b)]);
+        let posed = [(self.mesh.as_ref(), prev), (self.mesh.as_ref(), cur)]
+            .into_iter()
+            .chain(moved);
+        for (mesh, pose) in posed {
+            for v in &mesh.vertices {
                 let p =
                     (pose * Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]))).coords;
                 if p.z <= NEAR_PLANE_M {
@@ -484,14 +597,24 @@ impl SimCamera {
 
     /// Render `canvas_roi` of the canvas, composite the background, and resample `raw_roi` of
     /// the raw frame from it. `canvas_roi` must hold every bilinear tap of `raw_roi`.
-    fn render_raw(&mut self, t_c_o: &Pose, raw_roi: Roi, canvas_roi: Roi) -> Result<()> {
-        let rendered = self.renderer.render_into(
-            &self.mesh,
-            &self.canvas,
-            t_c_o,
-            Some(canvas_roi),
-            &self.opts,
-        )?;
+    fn render_raw(
+        &mut self,
+        t_c_o: &Pose,
+        occluder_poses: &[Pose],
+        raw_roi: Roi,
+        canvas_roi: Roi,
+    ) -> Result<()> {
+        let scene: Vec<(&Mesh, &Pose)> = std::iter::once((self.mesh.as_ref(), t_c_o))
+            .chain(
+                self.occluders
+                    .iter()
+                    .map(|m| m.as_ref())
+                    .zip(occluder_poses),
+            )
+            .collect();
+        let rendered =
+            self.renderer
+                .render_scene_into(&scene, &self.canvas, Some(canvas_roi), &self.opts)?;
         let cw = canvas_roi.width as usize;
         self.canvas_buf.clear();
         self.canvas_buf.extend_from_slice(&rendered.intensity);
@@ -773,6 +896,61 @@ mod tests {
                 .unwrap()
                 .full_frame
         );
+    }
+
+    #[test]
+    fn moving_occluders_fire_and_roi_steps_still_equal_full_frames() {
+        // A slab (an "arm") sweeps in front of the cube while the cube holds still: it hides part
+        // of the cube, fires on its own edges, and the ROI path stays exact.
+        let slab = Arc::new(test_cube(0.05, Shading::Constant(0.3)));
+        let mut roi_cam = sim_camera(2);
+        let mut full_cam = sim_camera(1024);
+        roi_cam.set_occluders(vec![slab.clone()]);
+        full_cam.set_occluders(vec![slab]);
+        let cube = pose(0.0, 0.7, 0.0);
+        let slab_at = |k: i64| vec![Isometry3::translation(-0.08 + 0.002 * k as f64, 0.0, 0.5)];
+        let (mut a, mut b) = (EventBatch::default(), EventBatch::default());
+        let mut total = 0;
+        for k in 0..30 {
+            let occ = slab_at(k);
+            let ia = roi_cam
+                .advance_scene(&cube, &occ, 1000 * k, None, &mut a)
+                .unwrap();
+            full_cam
+                .advance_scene(&cube, &occ, 1000 * k, None, &mut b)
+                .unwrap();
+            assert_eq!(a, b, "step {k}");
+            if k > 0 {
+                assert!(!ia.full_frame && ia.roi.area() < small_camera().n_pixels());
+            }
+            total += a.len();
+        }
+        assert!(total > 500, "the moving slab fires ({total} events)");
+        assert_eq!(roi_cam.frame(), full_cam.frame());
+        // Its image motion is bounded like the object's: 2 mm at 0.5 m, f = 300 px, ~1.2 px.
+        let d = roi_cam
+            .occluder_displacement_px(&slab_at(0), &slab_at(1))
+            .unwrap();
+        assert!((0.8..2.0).contains(&d), "{d}");
+        assert_eq!(
+            roi_cam
+                .occluder_displacement_px(&slab_at(3), &slab_at(3))
+                .unwrap(),
+            0.0
+        );
+        // Behind the camera it is not seen and does not count.
+        let behind = vec![Isometry3::translation(0.0, 0.0, -0.5)];
+        let behind2 = vec![Isometry3::translation(0.01, 0.0, -0.5)];
+        assert_eq!(
+            roi_cam.occluder_displacement_px(&behind, &behind2).unwrap(),
+            0.0
+        );
+        // Poses must match the occluders.
+        assert!(roi_cam
+            .advance_scene(&cube, &[], 40_000, None, &mut a)
+            .is_err());
+        assert!(roi_cam.advance(&cube, 40_000, None, &mut a).is_err());
+        assert!(roi_cam.occluder_displacement_px(&[], &[]).is_err());
     }
 
     #[test]
