@@ -4,12 +4,14 @@
 use crate::camera::PyCamera;
 use crate::errors::to_py;
 use crate::model::{pose_arg, PyMesh};
+use evcore::se3::{pose_from_matrix, Pose};
+use std::sync::Arc;
 use crate::sim::{pack_event_cd, params_from, to_event_cd};
 use evcore::render::RenderOptions;
 use evcore::sim::camera::{Background, BackgroundPlane, SimCamera};
 use evcore::EventBatch;
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2};
+use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -73,9 +75,10 @@ impl PySimCamera {
     }
 
     /// Render the object at `T_c_o` (4×4) at `t_us`, moving the background plane to `T_c_bg`
-    /// if given (a change forces a full frame), and step the sensor. Returns the interval's
-    /// events, time-sorted EventCD. The first call only initialises the sensor.
-    #[pyo3(signature = (T_c_o, t_us, T_c_bg=None))]
+    /// if given (a change forces a full frame), and step the sensor. With occluders set,
+    /// `occluders` is their (N, 4, 4) poses in the camera. Returns the interval's events,
+    /// time-sorted EventCD. The first call only initialises the sensor.
+    #[pyo3(signature = (T_c_o, t_us, T_c_bg=None, occluders=None))]
     #[allow(non_snake_case)]
     fn advance<'py>(
         &mut self,
@@ -83,18 +86,49 @@ impl PySimCamera {
         T_c_o: PyReadonlyArray2<'py, f64>,
         t_us: i64,
         T_c_bg: Option<PyReadonlyArray2<'py, f64>>,
+        occluders: Option<PyReadonlyArray3<'py, f64>>,
     ) -> PyResult<Bound<'py, PyAny>> {
         let pose = pose_arg(&T_c_o)?;
         let bg = T_c_bg.map(|m| pose_arg(&m)).transpose()?;
+        let occ = occluders.map(|a| poses_arg(&a)).transpose()?.unwrap_or_default();
         let (inner, out) = (&mut self.inner, &mut self.out);
         let bytes = py
             .detach(|| {
                 inner
-                    .advance(&pose, t_us, bg.as_ref(), out)
+                    .advance_scene(&pose, &occ, t_us, bg.as_ref(), out)
                     .map(|_| pack_event_cd(out))
             })
             .map_err(to_py)?;
         to_event_cd(py, bytes)
+    }
+
+    /// Replace the occluders: meshes drawn with the object and z-tested against it (e.g. the
+    /// robot arms). Every later `advance` must pose them all. The next frame is a full frame.
+    fn set_occluders(&mut self, meshes: Vec<PyRef<'_, PyMesh>>) {
+        self.inner
+            .set_occluders(meshes.iter().map(|m| Arc::clone(&m.inner)).collect());
+    }
+
+    /// Number of occluder meshes.
+    #[getter]
+    fn n_occluders(&self) -> usize {
+        self.inner.occluders().len()
+    }
+
+    /// Largest raw-pixel displacement (px) of the occluders' visible vertices between poses
+    /// `A` and `B` ((N, 4, 4) each, in camera); vertices behind the camera or off the canvas
+    /// do not count. 0 with no occluders.
+    #[allow(non_snake_case)]
+    fn occluder_displacement_px(
+        &self,
+        py: Python<'_>,
+        A: PyReadonlyArray3<'_, f64>,
+        B: PyReadonlyArray3<'_, f64>,
+    ) -> PyResult<f64> {
+        let (a, b) = (poses_arg(&A)?, poses_arg(&B)?);
+        let inner = &self.inner;
+        py.detach(|| inner.occluder_displacement_px(&a, &b))
+            .map_err(to_py)
     }
 
     /// Largest raw-pixel displacement (px) of any mesh vertex between poses `T_a` and `T_b`;
@@ -164,6 +198,24 @@ impl PySimCamera {
             self.inner.simulator().params()
         )
     }
+}
+
+/// An (N, 4, 4) stack of rigid poses.
+fn poses_arg(m: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<Pose>> {
+    let a = m.as_array();
+    if a.shape()[1..] != [4, 4] {
+        return Err(PyValueError::new_err(format!(
+            "poses must be an (N, 4, 4) array, got shape {:?}",
+            a.shape()
+        )));
+    }
+    (0..a.shape()[0])
+        .map(|k| {
+            let rows: [[f64; 4]; 4] =
+                std::array::from_fn(|i| std::array::from_fn(|j| a[(k, i, j)]));
+            pose_from_matrix(&rows).map_err(to_py)
+        })
+        .collect()
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

@@ -40,6 +40,11 @@ def add_episode_arguments(p: argparse.ArgumentParser, *, distance: float, speed:
         choices=("edges", "render"),
         help="event source: the model's edges (fast) or the rendered event camera (realistic, slow)",
     )
+    p.add_argument(
+        "--render-arms",
+        action="store_true",
+        help="also draw the UR5e and Panda arms into the rendered event camera (needs --events render)",
+    )
     p.add_argument("--out", type=Path, help="output directory (summary.json, log.csv, motion.png)")
 
 
@@ -60,6 +65,7 @@ def config_from_args(args: argparse.Namespace):
         cost_model=args.cost_model,
         dropout_s=tuple(args.dropout) if args.dropout else None,
         event_source=args.events,
+        render_arms=getattr(args, "render_arms", False),
     )
 
 
@@ -69,6 +75,12 @@ def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
 
     from evservo.sim.episode import run_episode, summarize, write_outputs
 
+    if getattr(args, "render_arms", False) and args.events != "render":
+        print(
+            "evservo: --render-arms draws the arms in the rendered event camera: "
+            f"it needs --events render, not --events {args.events}"
+        )
+        return 2
     cfg = config_from_args(args)
     out = args.out or default_out
     print(

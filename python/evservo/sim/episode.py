@@ -44,6 +44,7 @@ import numpy as np
 from evservo import _evcore, geometry, trajectories
 from evservo.control import Pbvs
 from evservo.robots import PoseFollower, shift_twist
+from evservo.sim.arms import ArmMeshes
 from evservo.sim.scene import DualArmScene
 from evservo.sim.sources import EVENT_SOURCES, EventSource, make_event_source
 from evservo.tracking import FRONTENDS, SOLVERS, Tracker
@@ -72,6 +73,9 @@ class EpisodeConfig:
     ``dropout_s``: ``(start, end)`` window whose events are lost (sensor or link failure).
     ``lost_pos_m``, ``lost_rot_deg``: tracking counts as lost, and the episode ends, once the estimate
     is this far from the truth at the estimate's time.
+    ``render_arms``: draw the UR5e and the Panda into the rendered event camera too (their moving
+    links occlude the scene and fire events; see :mod:`evservo.sim.arms`); needs ``event_source``
+    ``"render"``.
     """
 
     object: str = "box"
@@ -97,6 +101,7 @@ class EpisodeConfig:
     lost_pos_m: float = 0.05
     lost_rot_deg: float = 15.0
     log_rate_hz: float = 100.0
+    render_arms: bool = False
 
     def __post_init__(self) -> None:
         if self.tracker not in SOLVERS:
@@ -113,6 +118,11 @@ class EpisodeConfig:
             raise ValueError("step costs must be > 0 and the latency >= 0")
         if round(self.control_period_s * 1e6) % TICK_US or self.control_period_s <= 0:
             raise ValueError("control_period_s must be a positive multiple of 1 ms")
+        if self.render_arms and self.event_source != "render":
+            raise ValueError(
+                f"render_arms draws the arms in the rendered event camera: it needs event_source 'render', "
+                f"not {self.event_source!r}"
+            )
         if self.dropout_s is not None and not self.dropout_s[0] < self.dropout_s[1]:
             raise ValueError("dropout_s must be (start, end) with start < end")
 
@@ -242,14 +252,20 @@ PREROLL_US = 100_000
 PREROLL_OFFSET_C = np.array([0.006, -0.004, 0.0])  # m, in the camera frame
 
 
-def _primed_source(config: EpisodeConfig, camera: _evcore.Camera, T_c_o0: np.ndarray, tracker: Tracker) -> EventSource:
+def _primed_source(
+    config: EpisodeConfig,
+    camera: _evcore.Camera,
+    T_c_o0: np.ndarray,
+    tracker: Tracker,
+    arms: ArmMeshes | None = None,
+) -> EventSource:
     """The event source, after a 0.1 s pre-roll whose events fill the tracker's front-end.
 
     At rest nothing fires, and a front-end that has never seen the object holds only noise; on the
     bench the tracker has locked on while the UR5e brought the target into place. The pre-roll plays
     that: the target glides the last few millimetres into its start pose (a smooth stop), and the
     tracker ingests those events without stepping, so servoing starts from the true pose with the
-    object's edges in its active set."""
+    object's edges in its active set. The arms (if drawn) hold still during the pre-roll."""
 
     def pose_at(t_us: int) -> np.ndarray:
         s = min(1.0, (t_us + PREROLL_US) / PREROLL_US)
@@ -258,7 +274,7 @@ def _primed_source(config: EpisodeConfig, camera: _evcore.Camera, T_c_o0: np.nda
         return T
 
     source = make_event_source(
-        config.event_source, camera, config.object, pose_at(-PREROLL_US), -PREROLL_US, config.seed
+        config.event_source, camera, config.object, pose_at(-PREROLL_US), -PREROLL_US, config.seed, arms=arms
     )
     for t_us in range(-PREROLL_US + TICK_US, 1, TICK_US):
         tracker.ingest(source.events_until(t_us, pose_at(t_us)))
@@ -283,7 +299,8 @@ def run_episode(
     T_w_o0 = scene.T_w_o()
     camera = _evcore.Camera.imx636()
     core = Tracker(camera, cfg.object, T_c_o0, solver=cfg.tracker, frontend=cfg.frontend, seed=cfg.seed)
-    source = _primed_source(cfg, camera, T_c_o0, core)
+    arms = ArmMeshes(scene) if cfg.render_arms else None
+    source = _primed_source(cfg, camera, T_c_o0, core, arms)
     tracker = ClockedTracker(core, _cost_model(cfg))
     traj = trajectories.make_trajectory(cfg.trajectory, speed_mps=cfg.speed_mps, rot_rate_dps=cfg.rot_rate_dps)
     follower = PoseFollower(
@@ -352,7 +369,11 @@ def run_episode(
         t_next = t_us + TICK_US
         T_now = scene.T_c_o()
         T_c_o_true.append(T_now)
-        events = source.events_until(t_next, T_now, scene.T_w_c())
+        if arms is None:
+            events = source.events_until(t_next, T_now, scene.T_w_c())
+        else:
+            T_w_c = scene.T_w_c()
+            events = source.events_until(t_next, T_now, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
         if drop is not None and len(events):
             events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
         n_events += len(events)

@@ -12,13 +12,16 @@ a callable with the :class:`SourceFactory` signature added there.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from evservo import _evcore, geometry
 from evservo.synth import EdgeEventGenerator
 from evservo.tracking import model_point_set
+
+if TYPE_CHECKING:
+    from evservo.sim.arms import ArmMeshes
 
 
 class EventSource(Protocol):
@@ -49,6 +52,13 @@ def edge_source(camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, t0_us: int
     )
 
 
+def interpolate_poses(A: np.ndarray, B: np.ndarray, s: float) -> np.ndarray:
+    """See :func:`evservo.sim.arms.interpolate_poses`."""
+    from evservo.sim.arms import interpolate_poses as interp
+
+    return interp(A, B, s)
+
+
 class RenderedSource:
     """The rendered event camera (:class:`evservo._evcore.SimCamera`: textured object and a textured
     background plane, the lens's distortion, the ESIM-style sensor model with the ``imx636`` noise
@@ -57,12 +67,25 @@ class RenderedSource:
     The background plane is fixed in the world, 0.6 m behind the object's start position, so when the
     camera follows the object the world behind it streams past and fires, as on the real bench.
     Between calls the object and background poses are interpolated in sub-steps small enough that
-    nothing moves more than half a pixel between renders (ESIM's rule)."""
+    nothing moves more than half a pixel between renders (ESIM's rule).
+
+    With ``arms`` (:class:`~evservo.sim.arms.ArmMeshes`) the robot arms are drawn too, z-tested against
+    the object and the background: :meth:`events_until` then takes the links' poses in the camera at
+    ``t_us`` (``occluders``; omitted, they keep their last poses relative to the camera), interpolates
+    them per sub-step like the object, and the half-pixel rule bounds their image motion as well."""
 
     MAX_STEP_PX = 0.5
     BACKGROUND_BEHIND_M = 0.6
 
-    def __init__(self, camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, t0_us: int, seed: int) -> None:
+    def __init__(
+        self,
+        camera: _evcore.Camera,
+        obj: str,
+        T_c_o0: np.ndarray,
+        t0_us: int,
+        seed: int,
+        arms: ArmMeshes | None = None,
+    ) -> None:
         from evservo.models import load_object, to_core_mesh
         from evservo.sim.record import background_pose
 
@@ -71,7 +94,11 @@ class RenderedSource:
         self.sim = _evcore.SimCamera(camera, mesh, preset="imx636", seed=seed, T_c_bg=self.T_c_bg0)
         self.T_w_bg: np.ndarray | None = None
         self.t_us, self.T_c_o, self.T_c_bg = int(t0_us), T_c_o0, self.T_c_bg0
-        self.sim.advance(T_c_o0, self.t_us, T_c_bg=self.T_c_bg0)
+        self.occ: np.ndarray | None = None
+        if arms is not None:
+            self.sim.set_occluders(arms.core_meshes())
+            self.occ = arms.camera_poses()
+        self.sim.advance(T_c_o0, self.t_us, T_c_bg=self.T_c_bg0, occluders=self.occ)
 
     def _background(self, T_w_c: np.ndarray | None) -> np.ndarray:
         if T_w_c is None:
@@ -80,27 +107,38 @@ class RenderedSource:
             self.T_w_bg = T_w_c @ self.T_c_bg
         return geometry.inv(T_w_c) @ self.T_w_bg
 
-    def events_until(self, t_us: int, T_c_o: np.ndarray, T_w_c: np.ndarray | None = None) -> np.ndarray:
+    def events_until(
+        self, t_us: int, T_c_o: np.ndarray, T_w_c: np.ndarray | None = None, occluders: np.ndarray | None = None
+    ) -> np.ndarray:
         t0, t1 = self.t_us, int(t_us)
         if t1 <= t0:
             raise ValueError(f"event source time must increase: {t1} µs after {t0} µs")
+        if occluders is not None and self.occ is None:
+            raise ValueError("occluder poses given to a rendered source built without arms")
+        occ = self.occ if occluders is None else np.asarray(occluders, float)
         T_c_bg = self._background(T_w_c)
         moved_px = max(
             self.sim.max_displacement_px(self.T_c_o, T_c_o),
             # The camera's motion against the world, applied to the nearer object, bounds the image
             # motion of the background plane behind it.
             self.sim.max_displacement_px(self.T_c_o, T_c_bg @ geometry.inv(self.T_c_bg) @ self.T_c_o),
+            # The arms' visible vertices (behind the camera or off the image they do not count).
+            0.0 if occ is None else self.sim.occluder_displacement_px(self.occ, occ),
         )
         n = 1 if not np.isfinite(moved_px) else int(min(t1 - t0, max(1, np.ceil(moved_px / self.MAX_STEP_PX))))
         batches = []
         for s in np.linspace(0.0, 1.0, n + 1)[1:]:
             t = t0 + round(s * (t1 - t0))
+            occ_s = None if occ is None else interpolate_poses(self.occ, occ, s)
             batches.append(
                 self.sim.advance(
-                    geometry.interpolate(self.T_c_o, T_c_o, s), t, T_c_bg=geometry.interpolate(self.T_c_bg, T_c_bg, s)
+                    geometry.interpolate(self.T_c_o, T_c_o, s),
+                    t,
+                    T_c_bg=geometry.interpolate(self.T_c_bg, T_c_bg, s),
+                    occluders=occ_s,
                 )
             )
-        self.t_us, self.T_c_o, self.T_c_bg = t1, T_c_o, T_c_bg
+        self.t_us, self.T_c_o, self.T_c_bg, self.occ = t1, T_c_o, T_c_bg, occ
         events = np.concatenate(batches)
         # The sensor stamps events in [t0, t1]; the interval handed out is half open.
         return events[events["t"] < t1]
@@ -110,9 +148,20 @@ EVENT_SOURCES: dict[str, SourceFactory] = {"edges": edge_source, "render": Rende
 
 
 def make_event_source(
-    name: str, camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, t0_us: int, seed: int
+    name: str,
+    camera: _evcore.Camera,
+    obj: str,
+    T_c_o0: np.ndarray,
+    t0_us: int,
+    seed: int,
+    arms: ArmMeshes | None = None,
 ) -> EventSource:
-    """The source registered as ``name``, starting at ``t0_us`` (µs) with the object at ``T_c_o0``."""
+    """The source registered as ``name``, starting at ``t0_us`` (µs) with the object at ``T_c_o0``;
+    ``arms``: also draw the robot arms (the ``render`` source only)."""
     if name not in EVENT_SOURCES:
         raise ValueError(f"unknown event source {name!r}; choose one of {sorted(EVENT_SOURCES)}")
+    if arms is not None:
+        if name != "render":
+            raise ValueError(f"rendering the arms needs the 'render' event source, not {name!r}")
+        return RenderedSource(camera, obj, T_c_o0, t0_us, seed, arms=arms)
     return EVENT_SOURCES[name](camera, obj, T_c_o0, t0_us, seed)
