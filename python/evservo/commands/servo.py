@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 # The paper's Tables I and II (RMS servoing error over the run: pos. mm, rot. deg), for comparison.
@@ -77,8 +78,9 @@ def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
 
     if getattr(args, "render_arms", False) and args.events != "render":
         print(
-            "evservo: --render-arms draws the arms in the rendered event camera: "
-            f"it needs --events render, not --events {args.events}"
+            "evservo: error: --render-arms draws the arms in the rendered event camera: "
+            f"it needs --events render, not --events {args.events}",
+            file=sys.stderr,
         )
         return 2
     cfg = config_from_args(args)
