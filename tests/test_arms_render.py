@@ -103,6 +103,7 @@ def test_moving_arm_fires_on_its_edges(bench, camera):
     grad = np.hypot(*np.gradient(log))
     edges = binary_dilation(grad > 0.05, iterations=3)
     assert edges[ev["y"][on_arm], ev["x"][on_arm]].mean() > 0.9
+    assert edges[arm_only].mean() < 0.7  # ... which are not the whole arm
 
 
 def box_mask(camera, T_c_o: np.ndarray) -> np.ndarray:

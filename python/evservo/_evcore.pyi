@@ -131,6 +131,44 @@ class EventSimulator:
     def step(self, frame: F32, t_us: int) -> npt.NDArray[np.void]: ...
     def step_roi(self, frame: F32, roi: tuple[int, int, int, int], t_us: int) -> npt.NDArray[np.void]: ...
 
+class SimCamera:
+    """The rendered event camera: object mesh (and optional occluder meshes, e.g. the robot arms)
+    over a uniform or textured-plane background, the lens's distortion, the sensor model."""
+
+    def __init__(
+        self,
+        camera: Camera,
+        mesh: Mesh,
+        preset: str = "imx636",
+        seed: int = 0,
+        T_c_bg: F64 | None = None,
+        cell_m: float = 0.04,
+        background_intensity: float = 0.1,
+        ambient: float = 0.35,
+        diffuse: float = 0.65,
+        margin_px: int = 4,
+        **overrides: float,
+    ) -> None: ...
+    def advance(
+        self, T_c_o: F64, t_us: int, T_c_bg: F64 | None = None, occluders: F64 | None = None
+    ) -> npt.NDArray[np.void]:
+        """Render at ``t_us`` and step the sensor; ``occluders``: (N, 4, 4) poses of the N
+        occluder meshes in the camera (required once occluders are set)."""
+        ...
+    def set_occluders(self, meshes: list[Mesh]) -> None:
+        """Meshes drawn with the object and z-tested against it; the next frame is a full frame."""
+        ...
+    def max_displacement_px(self, T_a: F64, T_b: F64) -> float: ...
+    def occluder_displacement_px(self, A: F64, B: F64) -> float:
+        """Largest raw-pixel motion of the occluders' visible vertices between (N, 4, 4) pose stacks."""
+        ...
+    def frame(self) -> F32: ...
+    n_occluders: int
+    last_roi: tuple[int, int, int, int, bool] | None
+    time_us: int | None
+    camera: Camera
+    canvas: Camera
+
 def adaptive_dt_us(max_flow_px_per_s: float, lam: float = 0.5, min_rate_hz: float = 30.0) -> int: ...
 
 class RawReader:

@@ -1,0 +1,73 @@
+"""Render throughput of the rendered event camera at 1280×720 (IMX636 model), with and without the
+robot arms drawn (issue 4). Run: ``.venv/bin/python benches/arms_render.py [--renders N]``.
+
+Each render is one ``SimCamera.advance`` on the bench's start view (box at Z = 0.9 m, textured
+background plane 0.6 m behind it): render, composite, remap to the distorted grid, sensor step.
+Two regimes, as in the closed loop:
+
+* ``moving camera``: the background pose changes every render (the camera moves against the
+  world), so every render is a full frame;
+* ``moving object``: only the box moves (and the UR5e carrying it, when drawn), so renders cover
+  the changed region only.
+
+With arms, the UR5e's joints move a little every render, so its links are re-posed each time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from evservo import _evcore, geometry
+from evservo.models import load_object, to_core_mesh
+from evservo.sim.arms import ArmMeshes
+from evservo.sim.record import background_pose
+from evservo.sim.scene import DualArmScene
+
+
+def run(n: int, arms: ArmMeshes | None, moving_camera: bool) -> float:
+    scene = arms.scene if arms is not None else DualArmScene()
+    T_c_o = scene.reset_to_start(0.9, (0.35, -0.45, 0.1))
+    q0 = scene.ur.joint_positions()
+    cam = _evcore.Camera.imx636()
+    T_c_bg = background_pose(0.9, 0.6)
+    sim = _evcore.SimCamera(cam, to_core_mesh(load_object("box")), preset="imx636", seed=1, T_c_bg=T_c_bg)
+    occ = None
+    if arms is not None:
+        sim.set_occluders(arms.core_meshes())
+        occ = arms.camera_poses()
+    sim.advance(T_c_o, 0, T_c_bg=T_c_bg, occluders=occ)
+    start = time.perf_counter()
+    for k in range(1, n + 1):
+        # ~0.3 px of motion per render, the half-pixel rule's regime.
+        q = q0.copy()
+        q[0] += 3e-4 * k
+        scene.ur.set_joint_positions(q)
+        T_c_o = scene.T_c_o()
+        bg = T_c_bg @ geometry.pose((2e-4 * k, 0.0, 0.0)) if moving_camera else T_c_bg
+        occ = arms.camera_poses() if arms is not None else None
+        sim.advance(T_c_o, 100 * k, T_c_bg=bg, occluders=occ)
+    elapsed = time.perf_counter() - start
+    scene.ur.set_joint_positions(q0)
+    return n / elapsed
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--renders", type=int, default=60)
+    args = p.parse_args()
+    scene = DualArmScene()
+    arms = ArmMeshes(scene)
+    print(f"CPUs {os.cpu_count()}, load {os.getloadavg()[0]:.1f}; arms: {len(arms.links)} links, {arms.n_faces()} triangles")
+    for moving_camera in (True, False):
+        regime = "moving camera (full frames)" if moving_camera else "moving object (ROI)"
+        plain = run(args.renders, None, moving_camera)
+        with_arms = run(args.renders, arms, moving_camera)
+        print(f"{regime:30} without arms {plain:6.1f} renders/s   with arms {with_arms:6.1f} renders/s")
+
+
+if __name__ == "__main__":
+    main()
