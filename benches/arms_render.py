@@ -19,8 +19,6 @@ import argparse
 import os
 import time
 
-import numpy as np
-
 from evservo import _evcore, geometry
 from evservo.models import load_object, to_core_mesh
 from evservo.sim.arms import ArmMeshes
@@ -61,7 +59,8 @@ def main() -> None:
     args = p.parse_args()
     scene = DualArmScene()
     arms = ArmMeshes(scene)
-    print(f"CPUs {os.cpu_count()}, load {os.getloadavg()[0]:.1f}; arms: {len(arms.links)} links, {arms.n_faces()} triangles")
+    load = os.getloadavg()[0]
+    print(f"CPUs {os.cpu_count()}, load {load:.1f}; arms: {len(arms.links)} links, {arms.n_faces()} triangles")
     for moving_camera in (True, False):
         regime = "moving camera (full frames)" if moving_camera else "moving object (ROI)"
         plain = run(args.renders, None, moving_camera)
