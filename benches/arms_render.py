@@ -11,6 +11,8 @@ Two regimes, as in the closed loop:
   the changed region only.
 
 With arms, the UR5e's joints move a little every render, so its links are re-posed each time.
+``--episode S`` also runs a closed-loop episode of S simulated seconds (``--events render``, fixed
+cost model, 0.3 m/s) with and without the arms and counts its renders.
 """
 
 from __future__ import annotations
@@ -53,9 +55,49 @@ def run(n: int, arms: ArmMeshes | None, moving_camera: bool) -> float:
     return n / elapsed
 
 
+def episode(duration_s: float, render_arms: bool) -> str:
+    from evservo.sim import sources
+    from evservo.sim.episode import EpisodeConfig, run_episode, summarize
+
+    renders = 0
+    advance = _evcore.SimCamera.advance
+
+    class Counted:
+        def __init__(self, sim: _evcore.SimCamera) -> None:
+            self.sim = sim
+
+        def __getattr__(self, name: str) -> object:
+            return getattr(self.sim, name)
+
+        def advance(self, *args: object, **kwargs: object) -> object:
+            nonlocal renders
+            renders += 1
+            return advance(self.sim, *args, **kwargs)
+
+    init = sources.RenderedSource.__init__
+
+    def counted_init(self: sources.RenderedSource, *args: object, **kwargs: object) -> None:
+        init(self, *args, **kwargs)
+        self.sim = Counted(self.sim)  # type: ignore[assignment]
+
+    sources.RenderedSource.__init__ = counted_init  # type: ignore[method-assign]
+    try:
+        t = time.perf_counter()
+        cfg = EpisodeConfig(duration_s=duration_s, cost_model="fixed", event_source="render", render_arms=render_arms)
+        s = summarize(run_episode(cfg))
+    finally:
+        sources.RenderedSource.__init__ = init  # type: ignore[method-assign]
+    return (
+        f"episode {duration_s} s (+0.1 s pre-roll), arms {'on' if render_arms else 'off'}: {renders} renders, "
+        f"{time.perf_counter() - t:.1f} s wall, completed {s['completed']}, tracking error "
+        f"{s['gt_track_pos_rms_mm']:.2f} mm / {s['gt_track_rot_rms_deg']:.2f} deg"
+    )
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--renders", type=int, default=60)
+    p.add_argument("--episode", type=float, default=0.0, help="also time a closed-loop episode of this length (s)")
     args = p.parse_args()
     scene = DualArmScene()
     arms = ArmMeshes(scene)
@@ -66,6 +108,9 @@ def main() -> None:
         plain = run(args.renders, None, moving_camera)
         with_arms = run(args.renders, arms, moving_camera)
         print(f"{regime:30} without arms {plain:6.1f} renders/s   with arms {with_arms:6.1f} renders/s")
+    if args.episode > 0:
+        for render_arms in (False, True):
+            print(episode(args.episode, render_arms))
 
 
 if __name__ == "__main__":
