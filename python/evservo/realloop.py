@@ -132,7 +132,8 @@ class RealLoopResult:
     """What happened. Per control cycle (index k, time ``t_s[k]`` since servo start): ``T_w_c`` the
     camera pose, ``T_c_o_est`` the newest tracker pose and ``est_t_s`` its host time, ``v_cmd_w`` the
     controller's camera twist (world frame), ``v_sent_w`` the end-effector twist the gate let through,
-    ``state`` the controller's state, ``cycle_s`` the cycle's compute time, ``late_s`` how late it began.
+    ``state`` the controller's state, ``cycle_s`` the cycle's compute time, ``late_s`` how late it began,
+    ``est_t_us`` the pose's time stamp on the sensor clock.
     """
 
     config: RealLoopConfig
@@ -146,6 +147,7 @@ class RealLoopResult:
     state: list[str]
     cycle_s: np.ndarray
     late_s: np.ndarray
+    est_t_us: np.ndarray
     ended: str
     completed: bool
     interrupted: bool
@@ -250,7 +252,7 @@ def run_real_loop(
     rec = {
         "t_s": np.empty(n_max), "T_w_c": np.empty((n_max, 4, 4)), "T_c_o_est": np.empty((n_max, 4, 4)),
         "est_t_s": np.empty(n_max), "v_cmd_w": np.empty((n_max, 6)), "v_sent_w": np.empty((n_max, 6)),
-        "cycle_s": np.empty(n_max), "late_s": np.empty(n_max),
+        "cycle_s": np.empty(n_max), "late_s": np.empty(n_max), "est_t_us": np.empty(n_max, np.int64),
     }  # fmt: skip
     states: list[str] = []
     spells: list[WatchdogSpell] = []
@@ -294,7 +296,7 @@ def run_real_loop(
         pbvs.start(T_w_c, est.T_c_o, t_s=pose_t)
         des = est.T_c_o.copy() if T_c_o_des is None else geometry.as_pose(T_c_o_des, "T_c_o_des")
         pbvs.T_c_o_des = des.copy()
-        est_T, est_t, last_accepted_t = est.T_c_o.copy(), pose_t, pose_t
+        est_T, est_t, last_accepted_t, est_t_us = est.T_c_o.copy(), pose_t, pose_t, last_t_us
         say(f"servoing for {cfg.duration_s:.2f} s at {cfg.rate_hz:.0f} Hz" + (" (DRY RUN)" if cfg.dry_run else ""))
         stopping: str | None = None  # why the loop is braking to its end
         stop_t = 0.0
@@ -329,6 +331,7 @@ def run_real_loop(
                     host = pump.host_time(last_t_us)
                     p_t = min(max(host - t0, est_t + 1e-6), t)
                     pose, est_T, est_t = est.T_c_o, est.T_c_o.copy(), p_t
+                    est_t_us = last_t_us
             # -- control ------------------------------------------------------------------
             T_w_e = arm.T_w_e()
             T_w_c = T_w_e @ T_e_c
@@ -347,14 +350,14 @@ def run_real_loop(
                     why = f"no fresh pose for {cfg.stale_after_s} s"
                 stopping, stop_t = f"watchdog: {why}", t
                 spells.append(WatchdogSpell(t, last_accepted_t, None, None, why))
-                log.warning("watchdog at %.3f s: %s; braking to a stop", t, why)
+                log.info("watchdog at %.3f s: %s; braking to a stop", t, why)
                 say(f"WATCHDOG at {t:.3f} s: {why}; braking to a stop")
                 pbvs.stop()
             v_cmd = cmd.v_c_w
             arm.command_twist(shift_twist(v_cmd, p_c, p_e), period)
             # -- record ---------------------------------------------------------------------
             rec["t_s"][n], rec["T_w_c"][n], rec["T_c_o_est"][n], rec["est_t_s"][n] = t, T_w_c, est_T, est_t
-            rec["v_cmd_w"][n] = v_cmd
+            rec["v_cmd_w"][n], rec["est_t_us"][n] = v_cmd, est_t_us
             rec["v_sent_w"][n] = gate.last_sent if gate is not None else shift_twist(v_cmd, p_c, p_e)
             rec["late_s"][n] = now - deadline
             states.append(cmd.state)
@@ -445,10 +448,18 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
 
 
-def summarize(r: RealLoopResult) -> dict:
+def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """Metrics of a run (JSON-ready); keys as in :func:`evservo.sim.episode.summarize` where the
-    concept is the same."""
+    concept is the same. ``gt``: ground truth of a replayed simulated recording, ``(t_us (N,),
+    T_c_o (N, 4, 4))``, to score the tracker (``gt_track_pos_rms_mm``, ``gt_track_rot_rms_deg``; None
+    without)."""
     n = len(r.t_s)
+    gt_pos = gt_rot = None
+    if gt is not None and n:
+        from evservo.commands.track import _gt_at
+
+        k_pos, k_rot = pose_errors(r.T_c_o_est, _gt_at(gt[0], gt[1], r.est_t_us))
+        gt_pos, gt_rot = _rms(k_pos) * 1e3, float(np.rad2deg(_rms(k_rot)))
     s_pos, s_rot = pose_errors(r.T_c_o_est, np.broadcast_to(r.T_c_o_des, (n, 4, 4)))
     cam_rot = camera_rotation_rad(r.T_w_c)
     d_cam = r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3] if n else np.zeros((0, 3))
@@ -464,6 +475,8 @@ def summarize(r: RealLoopResult) -> dict:
         "servo_pos_rms_mm": _rms(s_pos) * 1e3,
         "servo_rot_rms_deg": float(np.rad2deg(_rms(s_rot))),
         "servo_pos_max_mm": float(np.max(s_pos) * 1e3) if n else float("nan"),
+        "gt_track_pos_rms_mm": gt_pos,
+        "gt_track_rot_rms_deg": gt_rot,
         "camera_rot_mean_deg": float(np.rad2deg(np.mean(cam_rot))) if n else float("nan"),
         "camera_travel_max_m": float(np.max(np.linalg.norm(d_cam, axis=1))) if n else 0.0,
         "tracker_rate_hz": n_steps / r.tracker_s,

@@ -163,7 +163,7 @@ def _run_real(args: argparse.Namespace) -> int:
     finally:
         source.close()
     out = Path(args.out) if args.out else Path("runs") / "servo-real"
-    summary = summarize(result)
+    summary = summarize(result, gt=(rec.gt_t_us, rec.gt_T) if rec is not None else None)
     paths = write_outputs(result, out, summary)
     print_real_summary(summary)
     print(f"summary: {paths['summary']}\nlog: {paths['log']}")
@@ -181,6 +181,9 @@ def print_real_summary(s: dict) -> None:
     print(f"tracker {s['tracker_rate_hz']:.0f} steps/s, pose age {s['pose_age_mean_ms']:.1f} ms mean "
           f"({s['pose_age_max_ms']:.1f} max), {s['events']} events, {s['events_dropped']} dropped")  # fmt: skip
     print(f"servo error (estimate vs desired): {s['servo_pos_rms_mm']:.2f} mm, {s['servo_rot_rms_deg']:.2f} deg RMS")
+    if s.get("gt_track_pos_rms_mm") is not None:
+        print(f"tracking error (estimate vs the recording's truth): {s['gt_track_pos_rms_mm']:.2f} mm, "
+              f"{s['gt_track_rot_rms_deg']:.2f} deg RMS")  # fmt: skip
     print(f"control: {s['control_cycles']} cycles at {s['control_rate_hz']:.0f} Hz, {s['missed_cycles']} missed, "
           f"cycle {s['cycle_time_mean_ms']:.2f} ms mean / {s['cycle_time_max_ms']:.2f} max")  # fmt: skip
     g = s.get("gate") or {}
@@ -190,4 +193,4 @@ def print_real_summary(s: dict) -> None:
         print(f"arm: {g['commands']} commands {verb}; limited: {lim}; {g['halts']} stops")
     for w in s["watchdog"]:
         print(f"watchdog: {w['reason']}; last pose {w['last_pose_s']:.3f} s, braking from {w['start_s']:.3f} s, "
-              f"at rest {w['zero_s']} s")  # fmt: skip
+              f"at rest {'never' if w['zero_s'] is None else format(w['zero_s'], '.3f')} s")  # fmt: skip
