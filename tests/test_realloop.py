@@ -356,3 +356,23 @@ def test_missing_robot_sdk_is_named(robot, module, message, rec_path, rec, tmp_p
     assert main([*args, "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("evservo: error:") and message in err and "Traceback" not in err
+
+
+def test_kinematic_arm_integrates_the_twist_it_holds():
+    t = [0.0]
+    arm = KinematicArm(limits=CartesianLimits(max_lin_acc=100.0, max_ang_acc=100.0), clock=lambda: t[0])
+    with arm:
+        T0 = arm.T_w_e()
+        arm.command_twist(np.array([0.1, 0.0, -0.05, 0.0, 0.0, 0.5]), 0.01)
+        t[0] = 0.2
+        T = arm.T_w_e()
+        np.testing.assert_allclose(T[:3, 3] - T0[:3, 3], [0.02, 0.0, -0.01], atol=1e-12)
+        np.testing.assert_allclose(T[:3, :3], Rotation.from_rotvec([0, 0, 0.1]).as_matrix() @ T0[:3, :3], atol=1e-12)
+        arm.stop()
+        t[0] = 1.0
+        np.testing.assert_allclose(arm.T_w_e(), T, atol=1e-12)  # stopped: stays put
+        assert arm.commands == 1 and arm.halts == 1
+    # The gate's limits act: 1 m/s asked, 0.1 m/s held.
+    with KinematicArm(limits=CartesianLimits(max_lin_vel=0.1, max_lin_acc=100.0), clock=lambda: t[0]) as arm:
+        arm.command_twist(np.array([1.0, 0, 0, 0, 0, 0]), 0.01)
+        np.testing.assert_allclose(arm.twist_w(), [0.1, 0, 0, 0, 0, 0])
