@@ -129,3 +129,11 @@ def test_object_section_is_optional_and_read(tmp_path):
 def test_bad_object_section_is_named(tmp_path, section, message):
     with pytest.raises(RigConfigError, match=message):
         load_rig_config(write(tmp_path, GOOD + section))
+
+
+def test_the_example_rig_config_loads():
+    from pathlib import Path
+
+    rig = load_rig_config(Path(__file__).resolve().parents[1] / "examples" / "rig.yaml")
+    assert (rig.camera.width, rig.camera.height) == (1280, 720) and rig.workspace is not None
+    assert rig.model == "box" and rig.init_pose is not None and rig.desired_pose is None
