@@ -319,6 +319,8 @@ def _unused_host() -> str:
         (["--robot", "sim", "--camera", "dv", "--replay-speed", "2"], "files only"),
         (["--robot", "sim", "--camera", "dv"], "iniVation"),
         (["--robot", "ur:{host}", "--camera", "{rec}", "--config", "{rig}"], "cannot connect to the UR controller"),
+        (["--robot", "franka:{host}", "--camera", "{rec}", "--config", "{rig}", "--realtime", "ignore"],
+         "cannot connect to the Franka robot"),
         (["--robot", "sim", "--camera", "{rec}", "--realtime", "ignore"], "franka"),
         (["--sim", "--camera", "{rec}"], "only apply with --robot"),
     ],
@@ -330,8 +332,10 @@ def test_bad_input_exits_non_zero_with_a_message(args, message, rec_path, rec, t
         "camera: {width: 1280, height: 720, fx: 1000, fy: 1000, cx: 640, cy: 360}\n"
         "limits: {max_lin_vel: 0.1, max_ang_vel: 0.3, max_lin_acc: 1.0, max_ang_acc: 2.0}\n"
     )
-    if "{host}" in " ".join(args):
+    if "ur:{host}" in args:
         pytest.importorskip("rtde_receive", reason="needs ur-rtde")
+    if "franka:{host}" in args:
+        pytest.importorskip("franky", reason="needs franky-control")
     fill = dict(rec=rec_path, d=tmp_path, rig=rig_yaml(tmp_path, rec), host=_unused_host())
     code = main(["servo", *(a.format(**fill) for a in args), "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
