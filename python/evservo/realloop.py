@@ -12,7 +12,10 @@ Three threads share the work:
   (Eq. 5–6, EMA, optional feed-forward, limits) and sends the camera twist, moved to the end effector
   through the hand–eye ``T_e_c``, to the arm, whose :class:`~evservo.robots.safety.SafetyGate`
   applies the rig's limits, workspace and its own watchdog. A deadline that passed before the loop
-  got to it is a *missed cycle* (counted, never made up for).
+  got to it (by more than half a period) is a *missed cycle*: counted, never made up for. While the
+  loop runs, the interpreter's GIL switch interval is cut to 0.5 ms (so the camera thread cannot hold
+  the loop up for the default 5 ms) and, while servoing, the cyclic garbage collector is off; both
+  are restored on the way out.
 
 Clocks: tracker poses are stamped with the time of the newest event behind them (sensor clock, µs).
 The camera thread maps sensor time to host time with the lowest offset seen, ``min(t_recv −
@@ -45,6 +48,7 @@ concept is the same (``completed``, ``ended``, ``servo_pos_rms_mm``, ``servo_rot
 from __future__ import annotations
 
 import csv
+import gc
 import json
 import logging
 import sys
@@ -260,7 +264,7 @@ def run_real_loop(
     n = missed = 0
     t0 = clock()
     des = None
-    switch = sys.getswitchinterval()
+    switch, gc_was_enabled = sys.getswitchinterval(), gc.isenabled()
     pump = _CameraPump(source, tracker, cfg.speed, clock)
     tracker_t0 = clock()
     tracker_t1 = None
@@ -298,6 +302,10 @@ def run_real_loop(
         pbvs.T_c_o_des = des.copy()
         est_T, est_t, last_accepted_t, est_t_us = est.T_c_o.copy(), pose_t, pose_t, last_t_us
         say(f"servoing for {cfg.duration_s:.2f} s at {cfg.rate_hz:.0f} Hz" + (" (DRY RUN)" if cfg.dry_run else ""))
+        # No cyclic garbage collection while servoing: a full collection can take longer than a period,
+        # and the loop makes no reference cycles. Collected after the arm has stopped.
+        gc.collect()
+        gc.disable()
         stopping: str | None = None  # why the loop is braking to its end
         stop_t = 0.0
         v_cmd = np.zeros(6)
@@ -394,6 +402,8 @@ def run_real_loop(
             raise  # nothing ran: the caller reports the error
     finally:
         sys.setswitchinterval(switch)
+        if gc_was_enabled:
+            gc.enable()
         try:
             arm.stop()
         except Exception as err:  # the link is gone: the arm's own watchdogs stop it
