@@ -301,6 +301,10 @@ def run_real_loop(
         des = est.T_c_o.copy() if T_c_o_des is None else geometry.as_pose(T_c_o_des, "T_c_o_des")
         pbvs.T_c_o_des = des.copy()
         est_T, est_t, last_accepted_t, est_t_us = est.T_c_o.copy(), pose_t, pose_t, last_t_us
+        if T_c_o_des is not None:
+            d_mm = geometry.translation_error_m(des, est.T_c_o) * 1e3
+            d_deg = np.rad2deg(geometry.rotation_error_rad(des, est.T_c_o))
+            say(f"desired pose is {d_mm:.1f} mm / {d_deg:.1f} deg from the tracked one: the arm will move to it")
         say(f"servoing for {cfg.duration_s:.2f} s at {cfg.rate_hz:.0f} Hz" + (" (DRY RUN)" if cfg.dry_run else ""))
         # No cyclic garbage collection while servoing: a full collection can take longer than a period,
         # and the loop makes no reference cycles. Collected after the arm has stopped.
@@ -515,7 +519,13 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
 
 def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None = None) -> dict[str, Path]:
     """Write ``summary.json`` and ``log.csv`` (``config.log_rate_hz`` rows per second, plus every
-    cycle whose controller state was not ``ok``) into ``out_dir``; returns their paths by name."""
+    cycle whose controller state was not ``ok``) into ``out_dir``; returns their paths by name.
+
+    ``log.csv``: camera position (world, m), estimate ``T_c_o`` translation (m), servo error (mm, deg),
+    pose age (ms), norms of the controller's camera twist and of the end-effector twist the gate let
+    through (m/s, deg/s), that twist's components in the robot base frame (in a dry run: what would
+    have been sent — check its directions before the first real run), cycle time and lateness (ms),
+    the controller's state."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"summary": out / "summary.json", "log": out / "log.csv"}
@@ -532,7 +542,8 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
     s_pos, s_rot = pose_errors(r.T_c_o_est[k], np.broadcast_to(r.T_c_o_des, (len(k), 4, 4)))
     header = [
         "t_s", "cam_x_m", "cam_y_m", "cam_z_m", "est_x_m", "est_y_m", "est_z_m", "servo_pos_mm",
-        "servo_rot_deg", "pose_age_ms", "v_cmd_mps", "w_cmd_dps", "v_sent_mps", "w_sent_dps", "cycle_ms",
+        "servo_rot_deg", "pose_age_ms", "v_cmd_mps", "w_cmd_dps", "v_sent_mps", "w_sent_dps",
+        "sent_vx_mps", "sent_vy_mps", "sent_vz_mps", "sent_wx_dps", "sent_wy_dps", "sent_wz_dps", "cycle_ms",
         "late_ms", "state",
     ]  # fmt: skip
     with paths["log"].open("w", newline="") as fh:
@@ -543,7 +554,8 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
                 r.t_s[i], *r.T_w_c[i, :3, 3], *r.T_c_o_est[i, :3, 3], s_pos[j] * 1e3, np.rad2deg(s_rot[j]),
                 (r.t_s[i] - r.est_t_s[i]) * 1e3, np.linalg.norm(r.v_cmd_w[i, :3]),
                 np.rad2deg(np.linalg.norm(r.v_cmd_w[i, 3:])), np.linalg.norm(r.v_sent_w[i, :3]),
-                np.rad2deg(np.linalg.norm(r.v_sent_w[i, 3:])), r.cycle_s[i] * 1e3, r.late_s[i] * 1e3,
+                np.rad2deg(np.linalg.norm(r.v_sent_w[i, 3:])), *r.v_sent_w[i, :3], *np.rad2deg(r.v_sent_w[i, 3:]),
+                r.cycle_s[i] * 1e3, r.late_s[i] * 1e3,
             ]  # fmt: skip
             w.writerow([f"{v:.6g}" for v in row] + [r.state[i]])
     return paths
