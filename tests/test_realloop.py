@@ -319,8 +319,10 @@ def _unused_host() -> str:
         (["--robot", "sim", "--camera", "dv", "--replay-speed", "2"], "files only"),
         (["--robot", "sim", "--camera", "dv"], "iniVation"),
         (["--robot", "ur:{host}", "--camera", "{rec}", "--config", "{rig}"], "cannot connect to the UR controller"),
-        (["--robot", "franka:{host}", "--camera", "{rec}", "--config", "{rig}", "--realtime", "ignore"],
-         "cannot connect to the Franka robot"),
+        (
+            ["--robot", "franka:{host}", "--camera", "{rec}", "--config", "{rig}", "--realtime", "ignore"],
+            "cannot connect to the Franka robot",
+        ),
         (["--robot", "sim", "--camera", "{rec}", "--realtime", "ignore"], "franka"),
         (["--sim", "--camera", "{rec}"], "only apply with --robot"),
     ],
