@@ -407,3 +407,19 @@ def test_sensor_clock_is_mapped_to_host_time(rec_path, rec):
     # Ages are event latency plus tracking time (a few ms), not the clock shift.
     assert 0.0 <= s["pose_age_mean_ms"] < 100.0 and s["pose_age_max_ms"] < cfg.stale_after_s * 1e3
     assert np.all(np.diff(r.est_t_s) >= 0) and np.all(r.est_t_s <= r.t_s)
+
+
+def test_a_tracker_that_cannot_lock_on_stops_before_moving(tmp_path, capsys):
+    from conftest import SAMPLES
+
+    raw = SAMPLES / "prophesee_gen41_evt3_1280x720.raw"  # 9 ms of a real scene that holds no box
+    if not raw.exists():
+        pytest.skip(f"{raw} not found (set EVSERVO_SAMPLES)")
+    args = ["servo", "--robot", "sim", "--camera", str(raw), "--model", "box", "--init-pose", "0,0,0.6,0,0,0,1",
+            "--settle", "0.005", "--out", str(tmp_path)]  # fmt: skip
+    assert main(args) == 2
+    out, err = capsys.readouterr()
+    assert "IMX636 intrinsics" in out  # a 1280x720 file without --config, as `evservo track` does
+    assert err.startswith("evservo: error:") and "Traceback" not in err
+    assert "lost the object while settling" in err or "no pose after" in err, err
+    assert not (tmp_path / "summary.json").exists()

@@ -124,6 +124,11 @@ def _run_real(args: argparse.Namespace) -> int:
     source = cameras.open_source(args.camera, speed=speed)
     try:
         camera = rig.camera if rig else (rec.camera if rec else None)
+        if camera is None and not live and (source.width, source.height) == (1280, 720):
+            from evservo import _evcore
+
+            camera = _evcore.Camera.imx636()  # as `evservo track` assumes for a 1280x720 file
+            print(f"note: no --config: taking the paper's IMX636 intrinsics for {args.camera}")
         if camera is None:
             raise InputError(f"{args.camera} carries no camera intrinsics: give --config RIG.yaml")
         if (camera.width, camera.height) != (source.width, source.height):
