@@ -175,7 +175,8 @@ def _run_real(args: argparse.Namespace) -> int:
     if result.interrupted:
         return 130
     if not result.completed:
-        print(f"evservo: error: servoing stopped: {result.ended}", file=sys.stderr)
+        why = result.error or result.ended
+        print(f"evservo: error: servoing stopped (arm stopped): {why}", file=sys.stderr)
         return 1
     return 0
 
