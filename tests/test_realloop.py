@@ -423,3 +423,13 @@ def test_a_tracker_that_cannot_lock_on_stops_before_moving(tmp_path, capsys):
     assert err.startswith("evservo: error:") and "Traceback" not in err
     assert "lost the object while settling" in err or "no pose after" in err, err
     assert not (tmp_path / "summary.json").exists()
+
+
+def test_cli_watchdog_stop_exits_1_and_still_writes_the_summary(rec_path, tmp_path, capsys):
+    args = ["servo", "--robot", "sim", "--camera", str(rec_path), "--settle", "0.1", "--replay-speed", str(SPEED),
+            "--stale-after", "0.0005", "--out", str(tmp_path)]  # fmt: skip
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("evservo: error: servoing stopped (arm stopped): watchdog") and "Traceback" not in err
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert not s["completed"] and len(s["watchdog"]) == 1 and s["watchdog"][0]["zero_s"] is not None
