@@ -114,6 +114,7 @@ def test_replay_through_the_kinematic_arm(rec_path, rec, tmp_path, capsys):
     log = np.genfromtxt(out / "log.csv", delimiter=",", names=True, dtype=None, encoding=None)
     assert len(log) > 50 and np.all(np.diff(log["t_s"]) > 0)
     assert log["v_cmd_mps"][-1] == 0.0  # braked to rest at the end
+    assert (out / "motion.png").stat().st_size > 10_000
     assert "ended normally" in capsys.readouterr().out
 
 
@@ -409,19 +410,29 @@ def test_sensor_clock_is_mapped_to_host_time(rec_path, rec):
     assert np.all(np.diff(r.est_t_s) >= 0) and np.all(r.est_t_s <= r.t_s)
 
 
-def test_a_tracker_that_cannot_lock_on_stops_before_moving(tmp_path, capsys):
+def test_a_tracker_that_cannot_lock_on_stops_before_moving(rec_path, rec):
+    from evservo.realloop import TrackingError
+
+    source, tracker, cfg = parts(rec_path, rec)
+    faulty = FaultyTracker(tracker, "lost")
+    faulty.arm_fault(0.0)  # every pose flagged lost from the start
+    with KinematicArm(limits=GENTLE) as arm, pytest.raises(TrackingError, match="lost the object while settling"):
+        run_real_loop(arm, source, faulty, cfg)
+    assert arm.commands == 0 and not tracker.running
+
+
+def test_a_file_shorter_than_the_settle_time_is_refused(tmp_path, capsys):
     from conftest import SAMPLES
 
-    raw = SAMPLES / "prophesee_gen41_evt3_1280x720.raw"  # 9 ms of a real scene that holds no box
+    raw = SAMPLES / "prophesee_gen41_evt3_1280x720.raw"  # 9 ms of a real scene
     if not raw.exists():
         pytest.skip(f"{raw} not found (set EVSERVO_SAMPLES)")
     args = ["servo", "--robot", "sim", "--camera", str(raw), "--model", "box", "--init-pose", "0,0,0.6,0,0,0,1",
-            "--settle", "0.005", "--out", str(tmp_path)]  # fmt: skip
+            "--out", str(tmp_path)]  # fmt: skip
     assert main(args) == 2
     out, err = capsys.readouterr()
     assert "IMX636 intrinsics" in out  # a 1280x720 file without --config, as `evservo track` does
-    assert err.startswith("evservo: error:") and "Traceback" not in err
-    assert "lost the object while settling" in err or "no pose after" in err, err
+    assert err.startswith("evservo: error:") and "ended during the settle time" in err and "Traceback" not in err
     assert not (tmp_path / "summary.json").exists()
 
 

@@ -518,8 +518,9 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None = None) -> dict[str, Path]:
-    """Write ``summary.json`` and ``log.csv`` (``config.log_rate_hz`` rows per second, plus every
-    cycle whose controller state was not ``ok``) into ``out_dir``; returns their paths by name.
+    """Write ``summary.json``, ``log.csv`` (``config.log_rate_hz`` rows per second, plus every
+    cycle whose controller state was not ``ok``) and ``motion.png`` (:func:`plot_motion`) into
+    ``out_dir``; returns their paths by name.
 
     ``log.csv``: camera position (world, m), estimate ``T_c_o`` translation (m), servo error (mm, deg),
     pose age (ms), norms of the controller's camera twist and of the end-effector twist the gate let
@@ -528,7 +529,7 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
     the controller's state."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"summary": out / "summary.json", "log": out / "log.csv"}
+    paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
     summary = summary if summary is not None else summarize(r)
     paths["summary"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
     n = len(r.t_s)
@@ -558,4 +559,37 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
                 r.cycle_s[i] * 1e3, r.late_s[i] * 1e3,
             ]  # fmt: skip
             w.writerow([f"{v:.6g}" for v in row] + [r.state[i]])
+    plot_motion(r, paths["motion"])
     return paths
+
+
+def plot_motion(r: RealLoopResult, path: str | Path) -> None:
+    """The paper's Fig. 5 as far as a real run can draw it: camera and object (camera pose · estimate)
+    displacement along each world axis from servo start (mm), the camera's rotation (deg), and the
+    watchdog spells shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = r.t_s
+    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(8, 8), constrained_layout=True)
+    if len(t):
+        d_cam = (r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3]) * 1e3
+        recon = r.T_w_c @ r.T_c_o_est
+        d_obj = (recon[:, :3, 3] - recon[:1, :3, 3]) * 1e3
+        for i, name in enumerate("xyz"):
+            axes[i].plot(t, d_cam[:, i], color="tab:blue", label="camera")
+            axes[i].plot(t, d_obj[:, i], color="tab:orange", ls=":", label="object (camera · estimate)")
+            axes[i].set_ylabel(f"{name} (mm)")
+        axes[3].plot(t, np.rad2deg(camera_rotation_rad(r.T_w_c)), color="tab:blue")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        for w in r.watchdog:
+            ax.axvspan(w.start_s, w.zero_s if w.zero_s is not None else w.start_s, color="red", alpha=0.2)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[3].set_ylabel("camera rot. (deg)")
+    axes[3].set_xlabel("time since servo start (s)")
+    fig.suptitle(f"{r.meta.get('robot', 'arm')}, {r.meta.get('camera', 'camera')}: {r.ended}", fontsize=10)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -171,7 +171,7 @@ def _run_real(args: argparse.Namespace) -> int:
     summary = summarize(result, gt=(rec.gt_t_us, rec.gt_T) if rec is not None else None)
     paths = write_outputs(result, out, summary)
     print_real_summary(summary)
-    print(f"summary: {paths['summary']}\nlog: {paths['log']}")
+    print(f"figure: {paths['motion']}\nsummary: {paths['summary']}\nlog: {paths['log']}")
     if result.interrupted:
         return 130
     if not result.completed:
