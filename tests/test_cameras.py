@@ -133,3 +133,24 @@ def test_prophesee_adapter_against_a_stand_in_of_openeb(monkeypatch):
         batches = list(cam)
     assert all(b.dtype == EVENT_CD for b in batches)
     assert batches[0].tolist() == [(1, 2, 1, 10), (3, 4, 0, 20)] and len(batches[1]) == 0
+
+
+def test_open_source_names_live_cameras_and_files(recording, monkeypatch, tmp_path):
+    from evservo.cameras import open_source
+
+    path, _ = recording
+    src = open_source(str(path), speed=4.0)
+    assert isinstance(src, ReplaySource) and src.speed == 4.0 and (src.width, src.height) == (64, 48)
+    with pytest.raises(FileNotFoundError, match="prophesee"):
+        open_source(str(tmp_path / "missing.raw"))
+    with pytest.raises(ValueError, match="files only"):
+        open_source("dv", speed=2.0)
+    monkeypatch.setitem(sys.modules, "metavision_core", None)
+    monkeypatch.setitem(sys.modules, "metavision_core.event_io", None)
+    with pytest.raises(ImportError, match="metavision_core"):
+        open_source("prophesee:00ca0009")
+    opened = []
+    monkeypatch.setattr("evservo.cameras.open_camera", lambda kind, serial=None: opened.append((kind, serial)))
+    open_source("dv:DXA000123")
+    open_source("Prophesee")
+    assert opened == [("inivation", "DXA000123"), ("prophesee", None)]

@@ -117,6 +117,7 @@ def test_lag_estimate_recovers_a_known_shift():
     assert np.isnan(estimate_lag_s(t, np.zeros_like(lead), follow))
 
 
-def test_real_robots_are_refused(capsys):
+def test_real_robot_without_host_is_refused(capsys):
+    # The real loop itself is tested in test_realloop.py.
     assert main(["servo", "--robot", "franka"]) == 2
-    assert "use --sim" in capsys.readouterr().out
+    assert "franka:192.168.1.10" in capsys.readouterr().err

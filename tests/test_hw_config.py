@@ -98,3 +98,42 @@ def test_missing_section_file_and_bad_yaml(tmp_path):
         load_rig_config(tmp_path / "nope.yaml")
     with pytest.raises(RigConfigError, match="not valid YAML"):
         load_rig_config(write(tmp_path, "hand_eye: [unclosed\n"))
+
+
+def test_object_section_is_optional_and_read(tmp_path):
+    rig = load_rig_config(write(tmp_path, GOOD))
+    assert rig.model is None and rig.init_pose is None and rig.desired_pose is None
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "part.obj").write_text("v 0 0 0\n")
+    text = GOOD + (
+        "object:\n  model: meshes/part.obj\n  init_pose: [0.01, 0.0, 0.6, 0.0, 0.0, 0.0, 1.0]\n"
+        "  desired_pose: [0.0, 0.0, 0.5, 0.0, 0.0, 0.7071067811865476, 0.7071067811865476]\n"
+    )
+    rig = load_rig_config(write(tmp_path, text))
+    assert rig.model == str(tmp_path / "meshes" / "part.obj")  # relative to the config file
+    np.testing.assert_allclose(rig.init_pose, geometry.pose((0.01, 0.0, 0.6)), atol=1e-12)
+    np.testing.assert_allclose(rig.desired_pose, geometry.pose((0.0, 0.0, 0.5), (0.0, 0.0, np.pi / 2)), atol=1e-12)
+    assert load_rig_config(write(tmp_path, GOOD + "object:\n  model: box\n")).model == "box"
+
+
+@pytest.mark.parametrize(
+    ("section", "message"),
+    [
+        ("object:\n  init_pose: [0, 0, 0.6]\n", r"object\.init_pose: .*shape 7"),
+        ("object:\n  init_pose: [0, 0, 0.6, 0, 0, 1, 1]\n", r"object\.init_pose: .*unit quaternion"),
+        ("object:\n  desired_pose: [0, 0, -0.6, 0, 0, 0, 1]\n", r"object\.desired_pose: .*in front of the camera"),
+        ("object:\n  model: 3\n", r"object\.model"),
+        ("object:\n  pose: [0, 0, 0.6, 0, 0, 0, 1]\n", r"object: unknown key\(s\) \['pose'\]"),
+    ],
+)
+def test_bad_object_section_is_named(tmp_path, section, message):
+    with pytest.raises(RigConfigError, match=message):
+        load_rig_config(write(tmp_path, GOOD + section))
+
+
+def test_the_example_rig_config_loads():
+    from pathlib import Path
+
+    rig = load_rig_config(Path(__file__).resolve().parents[1] / "examples" / "rig.yaml")
+    assert (rig.camera.width, rig.camera.height) == (1280, 720) and rig.workspace is not None
+    assert rig.model == "box" and rig.init_pose is not None and rig.desired_pose is None

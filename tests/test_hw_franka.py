@@ -11,30 +11,11 @@ import pytest
 franky = pytest.importorskip("franky", reason="needs franky-control")
 pytest.importorskip("franky_sim", reason="needs franky-sim")
 
-from franky_sim import SimulationServer  # noqa: E402
-from franky_sim.mujoco_simulator import MujocoSimulator  # noqa: E402
-
 from evservo.robots import Arm  # noqa: E402
 from evservo.robots.franka import FrankaArm  # noqa: E402
+from franka_sim import Sim  # noqa: E402
 
 V_Y = np.array([0.0, 0.05, 0.0, 0.0, 0.0, 0.0])  # 5 cm/s along the base y axis
-
-
-class Sim:
-    """A franky-sim server with one robot; picks a free 127.x.y.z address by itself."""
-
-    def __init__(self) -> None:
-        self.sim = MujocoSimulator(enable_visualization=False)
-        self.sim.__enter__()
-        self.sim.add_robot()
-        self.server = SimulationServer(self.sim)
-        self.server.__enter__()
-        self.server.run_async()
-        self.host = self.server.robot_servers[0].hostname
-
-    def close(self) -> None:
-        self.server.__exit__(None, None, None)
-        self.sim.__exit__(None, None, None)
 
 
 @pytest.fixture(scope="module")

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from evservo._evcore import EventSimulator, adaptive_dt_us
 
 EVENT_CD = np.dtype(

@@ -24,7 +24,15 @@ import numpy as np
 from evservo import io
 from evservo.io import EVENT_CD
 
-__all__ = ["CameraNotFoundError", "EventSource", "InivationCamera", "PropheseeCamera", "ReplaySource", "open_camera"]
+__all__ = [
+    "CameraNotFoundError",
+    "EventSource",
+    "InivationCamera",
+    "PropheseeCamera",
+    "ReplaySource",
+    "open_camera",
+    "open_source",
+]
 
 
 class CameraNotFoundError(RuntimeError):
@@ -186,3 +194,29 @@ class ReplaySource(_Source):
             self.lag_s = max(0.0, time.monotonic() - due)
             yield events
             end_us += self.delta_t_us
+
+
+#: Live camera kinds of :func:`open_source` (``dv`` and ``inivation`` are the same driver).
+LIVE_KINDS = {"prophesee": "prophesee", "dv": "inivation", "inivation": "inivation"}
+
+
+def open_source(spec: str, speed: float = 1.0, delta_t_us: int = 1000) -> EventSource:
+    """The event source a command-line ``--camera`` names.
+
+    ``prophesee``, ``dv`` (or ``inivation``), optionally ``:SERIAL`` (e.g. ``prophesee:00050423``):
+    a live camera; ``speed`` must then be 1. Anything else is an event file (any format
+    :func:`evservo.io.open_events` reads) replayed at ``speed`` × real time in ``delta_t_us`` slices.
+    Raises ``ImportError`` naming a missing driver package, :class:`CameraNotFoundError` when no
+    camera answers, ``FileNotFoundError``/``ValueError`` for a missing or unreadable file.
+    """
+    kind, _, serial = spec.partition(":")
+    if kind.lower() in LIVE_KINDS:
+        if speed != 1.0:
+            raise ValueError(f"--replay-speed applies to files only, not to the live camera {spec!r}")
+        return open_camera(LIVE_KINDS[kind.lower()], serial or None)
+    path = Path(spec)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"no such event file: {path} (--camera takes prophesee[:SERIAL], dv[:SERIAL] or an event file)"
+        )
+    return ReplaySource(path, speed=speed, delta_t_us=delta_t_us)

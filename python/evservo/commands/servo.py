@@ -1,4 +1,6 @@
-"""``evservo servo``: closed-loop servoing of a moving object (simulated bench)."""
+"""``evservo servo``: closed-loop servoing of a moving object, on the simulated bench (``--sim``) or on a
+real rig (``--robot ur:HOST|franka:HOST|sim`` with ``--camera``, ``--model`` and ``--config``; the loop
+itself is :mod:`evservo.realloop`)."""
 
 from __future__ import annotations
 
@@ -119,15 +121,44 @@ def print_summary(s: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if not args.sim:
-        print(f"evservo servo: the {args.robot or 'real'} robot is not available in this build: use --sim")
-        return 2
+        from evservo.commands.servo_real import run_real
+
+        return run_real(args)
+    given = [f"--{name.replace('_', '-')}" for name in REAL_ONLY if getattr(args, name) not in (None, False)]
+    if given:
+        raise ValueError(f"{', '.join(given)} only apply with --robot (the real loop), not with --sim")
     return run_with_report(args, Path("runs") / "servo")
+
+
+#: Options of the real loop only (``--sim`` refuses them).
+REAL_ONLY = ("camera", "model", "config", "init_pose", "desired_pose", "settle", "stiffness", "rate", "dry_run",
+             "replay_speed", "stale_after", "realtime")  # fmt: skip
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("servo", help="closed-loop servoing of a moving object")
     mode = s.add_mutually_exclusive_group(required=True)
     mode.add_argument("--sim", action="store_true", help="the simulated dual-arm bench")
-    mode.add_argument("--robot", choices=("ur", "franka"), help="real robots (not available in this build)")
+    mode.add_argument(
+        "--robot",
+        metavar="ur:HOST|franka:HOST|sim",
+        help="the real loop on a UR (ur-rtde) or Franka (franky) arm, or on a kinematic stand-in arm (sim)",
+    )
     add_episode_arguments(s, distance=0.9, speed=0.4, duration=20.0)
+    r = s.add_argument_group("real loop (--robot)")
+    r.add_argument("--camera", metavar="prophesee[:SERIAL]|dv[:SERIAL]|FILE",
+                   help="live camera, or an event file replayed at real time")  # fmt: skip
+    r.add_argument("--model", help="object: built-in name (box, drill, football) or mesh path (default: config's)")
+    r.add_argument("--config", metavar="RIG.yaml", help="rig config: camera intrinsics, hand-eye T_e_c, limits")
+    r.add_argument("--init-pose", metavar="x,y,z,qx,qy,qz,qw", help="object in camera at start (default: config's)")
+    r.add_argument("--desired-pose", metavar="x,y,z,qx,qy,qz,qw",
+                   help="object in camera to servo to (default: the tracked pose when servoing starts)")  # fmt: skip
+    r.add_argument("--settle", type=float, help="seconds of tracking before the arm moves (default 0.5)")
+    r.add_argument("--stiffness", type=float, help="k of Eq. 6, 1/s² (default 20, the paper's)")
+    r.add_argument("--rate", type=float, help="control rate, Hz (default 500)")
+    r.add_argument("--stale-after", type=float, help="watchdog: stop when no fresh pose for this long, s (default 0.1)")
+    r.add_argument("--replay-speed", type=float, help="replay FILE this many times faster than real time (default 1)")
+    r.add_argument("--dry-run", action="store_true", help="run everything but never move the arm (commands logged)")
+    r.add_argument("--realtime", choices=("enforce", "ignore"),
+                   help="franka: libfranka's realtime check (default enforce; ignore for franky-sim)")  # fmt: skip
     s.set_defaults(func=run)

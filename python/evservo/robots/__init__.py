@@ -6,6 +6,7 @@ from evservo.robots.config import RigConfig, RigConfigError, load_rig_config
 from evservo.robots.follow import PoseFollower
 from evservo.robots.franka import FrankaArm
 from evservo.robots.ik import solve_joint_velocities
+from evservo.robots.kinematic import KinematicArm
 from evservo.robots.limits import PANDA, UR5E, JointLimits
 from evservo.robots.safety import GateRecord, SafetyGate, Workspace
 from evservo.robots.sim_arm import SimArm
@@ -18,6 +19,7 @@ __all__ = [
     "FrankaArm",
     "GateRecord",
     "JointLimits",
+    "KinematicArm",
     "PoseFollower",
     "RigConfig",
     "RigConfigError",

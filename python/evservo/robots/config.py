@@ -23,6 +23,10 @@ typo cannot silently drop a limit)::
     workspace:                     # optional: box for the end-effector origin, robot base frame, metres
       lo: [0.2, -0.4, 0.05]
       hi: [0.7, 0.4, 0.6]
+    object:                        # optional: defaults for `evservo servo --robot ...` (options override)
+      model: box                   # built-in name or mesh path (relative paths: from this file's folder)
+      init_pose: [0.0, 0.0, 0.6, 0.0, 0.0, 0.0, 1.0]     # T_c_o at start: x, y, z (m), qx, qy, qz, qw
+      desired_pose: [0.0, 0.0, 0.6, 0.0, 0.0, 0.0, 1.0]  # T_c_o to servo to (default: the pose at start)
 
 :func:`load_rig_config` raises :class:`RigConfigError` (a ``ValueError``) naming the file and the
 offending key; a missing file raises ``FileNotFoundError``.
@@ -53,13 +57,18 @@ class RigConfigError(ValueError):
 @dataclass(frozen=True)
 class RigConfig:
     """A loaded rig: ``T_e_c`` (4×4, metres), the camera model, the end-effector limits and,
-    optionally, the workspace box; ``path`` is where it was read from."""
+    optionally, the workspace box; ``path`` is where it was read from. From the optional ``object``
+    section: ``model`` (name or resolved path), ``init_pose`` and ``desired_pose`` (``T_c_o``, 4×4),
+    each None when not given."""
 
     T_e_c: np.ndarray
     camera: Camera
     limits: CartesianLimits
     workspace: Workspace | None
     path: Path
+    model: str | None = None
+    init_pose: np.ndarray | None = None
+    desired_pose: np.ndarray | None = None
 
 
 class _Reader:
@@ -174,6 +183,32 @@ def _workspace(r: _Reader, data: dict) -> Workspace | None:
         raise r.fail("workspace", str(err)) from err
 
 
+def _object(r: _Reader, data: dict) -> tuple[str | None, np.ndarray | None, np.ndarray | None]:
+    sec = r.section(data, "object", {"model", "init_pose", "desired_pose"}, optional=True)
+    if sec is None:
+        return None, None, None
+    model = sec.get("model")
+    if model is not None:
+        if not isinstance(model, str) or not model:
+            raise r.fail("object.model", f"must be a built-in name or a mesh path, got {model!r}")
+        candidate = r.path.parent / model
+        if ("/" in model or "." in model) and not Path(model).is_absolute() and candidate.exists():
+            model = str(candidate)
+    poses = []
+    for key in ("init_pose", "desired_pose"):
+        if sec.get(key) is None:
+            poses.append(None)
+            continue
+        v = r.array(sec, "object", key, ((7,),))
+        if abs(np.linalg.norm(v[3:]) - 1.0) > 1e-3:
+            norm = np.linalg.norm(v[3:])
+            raise r.fail(f"object.{key}", f"must be x, y, z, qx, qy, qz, qw with a unit quaternion; norm is {norm:.6f}")
+        if v[2] <= 0:
+            raise r.fail(f"object.{key}", f"the object must be in front of the camera (z > 0), got z = {v[2]}")
+        poses.append(geometry.pose_from_xyz_quat(*v))
+    return model, poses[0], poses[1]
+
+
 def load_rig_config(path: str | os.PathLike) -> RigConfig:
     """Read and validate a rig config YAML file (layout in the module docstring)."""
     p = Path(path)
@@ -186,7 +221,7 @@ def load_rig_config(path: str | os.PathLike) -> RigConfig:
         raise RigConfigError(f"rig config {p}: not valid YAML: {err}") from err
     if not isinstance(data, dict):
         raise RigConfigError(f"rig config {p}: top level must be a mapping of sections")
-    unknown = sorted(set(data) - {"hand_eye", "camera", "limits", "workspace"})
+    unknown = sorted(set(data) - {"hand_eye", "camera", "limits", "workspace", "object"})
     if unknown:
         raise RigConfigError(f"rig config {p}: unknown section(s) {unknown}")
-    return RigConfig(_hand_eye(r, data), _camera(r, data), _limits(r, data), _workspace(r, data), p)
+    return RigConfig(_hand_eye(r, data), _camera(r, data), _limits(r, data), _workspace(r, data), p, *_object(r, data))

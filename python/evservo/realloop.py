@@ -1,0 +1,595 @@
+"""The real closed loop: event camera → threaded tracker → PBVS at a fixed rate → arm (paper Sec. III-C).
+
+Three threads share the work:
+
+* the **camera thread** iterates the event source (a live camera, or a recording replayed at
+  ``speed`` × real time by :class:`~evservo.cameras.ReplaySource`), clamps time that steps backwards
+  (as ``evservo track`` does) and pushes each batch to the tracker (``push`` never blocks: if the
+  solver falls behind, its queue drops the oldest batches and counts them);
+* the **tracker thread** (Rust, no GIL) steps EDFT⁺ on whatever has arrived and publishes poses;
+* the **control loop** (the calling thread) runs every ``1/rate_hz`` seconds against absolute
+  deadlines of ``time.monotonic``: it reads the newest pose, runs :class:`~evservo.control.Pbvs`
+  (Eq. 5–6, EMA, optional feed-forward, limits) and sends the camera twist, moved to the end effector
+  through the hand–eye ``T_e_c``, to the arm, whose :class:`~evservo.robots.safety.SafetyGate`
+  applies the rig's limits, workspace and its own watchdog. A deadline that passed before the loop
+  got to it (by more than half a period) is a *missed cycle*: counted, never made up for. While the
+  loop runs, the interpreter's GIL switch interval is cut to 0.5 ms (so the camera thread cannot hold
+  the loop up for the default 5 ms) and, while servoing, the cyclic garbage collector is off; both
+  are restored on the way out.
+
+Clocks: tracker poses are stamped with the time of the newest event behind them (sensor clock, µs).
+The camera thread maps sensor time to host time with the lowest offset seen, ``min(t_recv −
+t_event / speed)`` over batches (the least delayed batch bounds the offset from above), so a pose's
+age is ``now − (offset + t_pose / speed)``; a pose is passed on once (by its time stamp), never dated
+after ``now`` and never before the previous one.
+
+Sequence: the tracker starts from ``T_c_o_init`` and tracks for ``settle_s`` while the arm stays
+still; it must have published a pose the tracker itself does not flag as lost. Then servoing starts:
+the desired pose ``T_c_o_des`` is the tracked pose at that instant unless given. Servoing ends, with
+the commanded twist braked to zero at the acceleration limit and then an explicit arm stop, on:
+
+* ``duration_s`` reached, or the replayed recording ended — a normal end (``completed``);
+* **watchdog**: no fresh pose for ``stale_after_s`` (tracker stalled, no events, or the tracker flags
+  the object lost: a lost estimate is not used), or a pose **jump** refused by the controller (farther
+  than ``max_jump_m``/``max_jump_rad`` from the prediction). Unlike the simulated bench, the real loop
+  does not resume after a watchdog spell: it brakes and stops, and reports the spell;
+
+and with an immediate arm stop on an exception (lost link to the arm, camera failure) or Ctrl-C.
+Whatever happens the arm is told to stop before :func:`run_real_loop` returns or raises, and the
+tracker and camera threads are ended.
+
+Outputs (:func:`summarize`, :func:`write_outputs`) use the simulated episode's key names where the
+concept is the same (``completed``, ``ended``, ``servo_pos_rms_mm``, ``servo_rot_rms_deg``,
+``tracker_rate_hz``, ``tracker_steps``, ``pose_age_mean_ms``, ``events``, ``watchdog``,
+``camera_rot_mean_deg``, ``wall_s``, ``config``, ``versions``) and add the loop's own (``servo_s``,
+``control_cycles``, ``missed_cycles``, …). Times are seconds since servo start.
+"""
+
+from __future__ import annotations
+
+import csv
+import gc
+import json
+import logging
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evservo import _evcore, geometry
+from evservo.control import CartesianLimits, Pbvs
+from evservo.robots.base import Arm, shift_twist
+from evservo.sim.episode import camera_rotation_rad, pose_errors
+
+__all__ = ["RealLoopConfig", "RealLoopResult", "TrackingError", "run_real_loop", "summarize", "write_outputs"]
+
+log = logging.getLogger(__name__)
+
+
+class TrackingError(RuntimeError):
+    """The tracker could not lock on before servoing (no pose, or the object flagged lost)."""
+
+
+@dataclass(frozen=True)
+class RealLoopConfig:
+    """How to run the real loop. Times in seconds, rates in Hz.
+
+    ``rate_hz``: control rate (the period is also the hold time of each command).
+    ``settle_s``: tracking before servoing, arm still. ``duration_s``: servoing time.
+    ``stiffness``: k of Eq. 6 (1/s²). ``feedforward``: feed the target's estimated motion forward.
+    ``stale_after_s``, ``max_jump_m``, ``max_jump_rad``: the controller's watchdog and jump gate.
+    ``max_brake_s``: longest braking before the arm is stopped outright.
+    ``speed``: sensor seconds per host second (the replay speed; 1 for a live camera).
+    ``log_rate_hz``: rows per second in ``log.csv``. ``dry_run``: only recorded in the summary (the
+    arm itself must be opened in dry run).
+    """
+
+    rate_hz: float = 500.0
+    settle_s: float = 0.5
+    duration_s: float = 20.0
+    stiffness: float = 20.0
+    feedforward: bool = False
+    stale_after_s: float = 0.1
+    max_jump_m: float = 0.05
+    max_jump_rad: float = 0.3
+    max_brake_s: float = 1.0
+    speed: float = 1.0
+    log_rate_hz: float = 100.0
+    dry_run: bool = False
+
+    def __post_init__(self) -> None:
+        positive = dict(
+            rate_hz=self.rate_hz, duration_s=self.duration_s, stiffness=self.stiffness,
+            stale_after_s=self.stale_after_s, max_jump_m=self.max_jump_m, max_jump_rad=self.max_jump_rad,
+            max_brake_s=self.max_brake_s, speed=self.speed, log_rate_hz=self.log_rate_hz,
+        )  # fmt: skip
+        for name, v in positive.items():
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {v}")
+        if not (np.isfinite(self.settle_s) and self.settle_s >= 0):
+            raise ValueError(f"settle_s must be finite and >= 0, got {self.settle_s}")
+        if self.rate_hz > 2000:
+            raise ValueError(f"rate_hz above 2000 Hz is beyond any arm's command rate, got {self.rate_hz}")
+
+
+@dataclass(frozen=True)
+class WatchdogSpell:
+    """A watchdog stop, with the sim episode's keys (seconds since servo start): ``last_pose_s`` the
+    time stamp of the last accepted pose, ``start_s`` the first braking cycle, ``zero_s`` the first
+    cycle commanding exactly zero (None if the loop ended before), ``end_s`` None (the real loop
+    does not resume); ``reason`` why it fired."""
+
+    start_s: float
+    last_pose_s: float
+    zero_s: float | None
+    end_s: float | None
+    reason: str
+
+
+@dataclass
+class RealLoopResult:
+    """What happened. Per control cycle (index k, time ``t_s[k]`` since servo start): ``T_w_c`` the
+    camera pose, ``T_c_o_est`` the newest tracker pose and ``est_t_s`` its host time, ``v_cmd_w`` the
+    controller's camera twist (world frame), ``v_sent_w`` the end-effector twist the gate let through,
+    ``state`` the controller's state, ``cycle_s`` the cycle's compute time, ``late_s`` how late it began,
+    ``est_t_us`` the pose's time stamp on the sensor clock.
+    """
+
+    config: RealLoopConfig
+    T_c_o_des: np.ndarray
+    t_s: np.ndarray
+    T_w_c: np.ndarray
+    T_c_o_est: np.ndarray
+    est_t_s: np.ndarray
+    v_cmd_w: np.ndarray
+    v_sent_w: np.ndarray
+    state: list[str]
+    cycle_s: np.ndarray
+    late_s: np.ndarray
+    est_t_us: np.ndarray
+    ended: str
+    completed: bool
+    interrupted: bool
+    error: str | None
+    servo_s: float
+    missed_cycles: int
+    watchdog: list[WatchdogSpell]
+    tracker_steps: dict[str, int]
+    tracker_s: float
+    events: int
+    events_dropped: int
+    events_time_clamped: int
+    gate: dict[str, Any]
+    wall_s: float
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+class _CameraPump(threading.Thread):
+    """Source → tracker, with the sensor-to-host clock offset (see the module docstring)."""
+
+    def __init__(self, source: Any, tracker: Any, speed: float, clock: Callable[[], float]) -> None:
+        super().__init__(name="evservo-camera", daemon=True)
+        self.source, self.tracker, self.speed, self.clock = source, tracker, float(speed), clock
+        self.offset_s: float | None = None
+        self.events = self.batches = self.clamped = 0
+        self.error: BaseException | None = None
+        self.ended = False  # the source ran out (end of a recording)
+        self.done = threading.Event()
+        self._halt = threading.Event()
+        self._t_max: int | None = None
+
+    def run(self) -> None:
+        from evservo.commands.track import clamp_time
+
+        try:
+            for ev in self.source:
+                if self._halt.is_set():
+                    return
+                if not len(ev):
+                    continue
+                ev, n, self._t_max = clamp_time(ev, self._t_max)
+                off = self.clock() - int(ev["t"][-1]) * 1e-6 / self.speed
+                self.offset_s = off if self.offset_s is None else min(self.offset_s, off)
+                self.tracker.push(ev)
+                self.events += len(ev)
+                self.batches += 1
+                self.clamped += n
+            self.ended = True
+        except BaseException as err:  # reported by the control loop, which stops the arm
+            self.error = err
+        finally:
+            self.done.set()
+
+    def host_time(self, t_us: int) -> float | None:
+        """Host time (``clock`` seconds) of sensor time ``t_us``; None before the first batch."""
+        off = self.offset_s
+        return None if off is None else off + t_us * 1e-6 / self.speed
+
+    def halt(self, timeout_s: float = 2.0) -> None:
+        self._halt.set()
+        if self.is_alive():
+            self.join(timeout_s)
+
+
+def _gate_of(arm: Arm) -> Any:
+    return getattr(arm, "gate", None)
+
+
+def run_real_loop(
+    arm: Arm,
+    source: Any,
+    tracker: Any,
+    config: RealLoopConfig,
+    T_c_o_des: np.ndarray | None = None,
+    progress: Callable[[str], None] | None = None,
+    meta: dict[str, Any] | None = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> RealLoopResult:
+    """Run the loop (see the module docstring) and return what happened.
+
+    ``arm``: an opened :class:`~evservo.robots.base.Arm` (its ``T_e_c`` is the hand–eye). ``source``:
+    an iterable of event batches. ``tracker``: a :class:`~evservo.tracking.Tracker` not yet started,
+    initialised at the object's start pose (or anything with ``start/push/latest/stop/stats``).
+    ``T_c_o_des``: desired object pose in the camera (default: the tracked pose at servo start).
+    ``progress``: called with status lines. ``meta``: copied into the summary (robot, camera, …).
+    The caller keeps ownership of ``arm`` and ``source`` (close them afterwards); the arm is stopped
+    and the tracker stopped before this returns. Raises :class:`TrackingError` if the tracker has no
+    usable pose after the settle time, and the camera's error if the source fails while settling.
+    """
+    cfg = config
+    say = progress or (lambda _msg: None)
+    wall0 = time.perf_counter()
+    period = 1.0 / cfg.rate_hz
+    T_e_c = geometry.as_pose(arm.T_e_c, "T_e_c")
+    gate = _gate_of(arm)
+    pbvs = Pbvs(
+        k=cfg.stiffness, feedforward=cfg.feedforward, period_s=period,
+        limits=gate.limits if gate is not None else CartesianLimits(), stale_after_s=cfg.stale_after_s,
+        max_jump_m=cfg.max_jump_m, max_jump_rad=cfg.max_jump_rad,
+    )  # fmt: skip
+    n_max = int(np.ceil((cfg.duration_s + cfg.max_brake_s) * cfg.rate_hz)) + 2
+    rec = {
+        "t_s": np.empty(n_max), "T_w_c": np.empty((n_max, 4, 4)), "T_c_o_est": np.empty((n_max, 4, 4)),
+        "est_t_s": np.empty(n_max), "v_cmd_w": np.empty((n_max, 6)), "v_sent_w": np.empty((n_max, 6)),
+        "cycle_s": np.empty(n_max), "late_s": np.empty(n_max), "est_t_us": np.empty(n_max, np.int64),
+    }  # fmt: skip
+    states: list[str] = []
+    spells: list[WatchdogSpell] = []
+    ended, completed, interrupted, error = "not started", False, False, None
+    n = missed = 0
+    t0 = clock()
+    des = None
+    switch, gc_was_enabled = sys.getswitchinterval(), gc.isenabled()
+    pump = _CameraPump(source, tracker, cfg.speed, clock)
+    tracker_t0 = clock()
+    tracker_t1 = None
+    tracker.start()
+    try:
+        # Short GIL slices: the camera thread must not hold the control loop up for 5 ms at a time.
+        sys.setswitchinterval(min(switch, 0.0005))
+        pump.start()
+        # -- settle: track, arm still -------------------------------------------------------
+        say(f"settling: tracking for {cfg.settle_s:.2f} s before moving")
+        settle_end = clock() + cfg.settle_s
+        while clock() < settle_end:
+            if pump.error is not None:
+                raise pump.error
+            if pump.done.is_set():
+                raise TrackingError("the event source ended during the settle time")
+            time.sleep(0.002)
+        if pump.error is not None:
+            raise pump.error
+        est = tracker.latest()
+        if est.seq == 0 or pump.offset_s is None:
+            raise TrackingError(f"no pose after {cfg.settle_s} s of settling: no events reached the tracker")
+        if est.lost:
+            raise TrackingError(
+                f"the tracker lost the object while settling (inlier fraction {est.inlier_fraction:.2f}): "
+                "check the initial pose (--init-pose) and the model"
+            )
+        t0 = clock()
+        last_t_us = int(est.t_us)
+        last_seq = est.seq
+        pose_t = min(pump.host_time(last_t_us) - t0, 0.0)
+        T_w_c = arm.T_w_e() @ T_e_c
+        pbvs.start(T_w_c, est.T_c_o, t_s=pose_t)
+        des = est.T_c_o.copy() if T_c_o_des is None else geometry.as_pose(T_c_o_des, "T_c_o_des")
+        pbvs.T_c_o_des = des.copy()
+        est_T, est_t, last_accepted_t, est_t_us = est.T_c_o.copy(), pose_t, pose_t, last_t_us
+        if T_c_o_des is not None:
+            d_mm = geometry.translation_error_m(des, est.T_c_o) * 1e3
+            d_deg = np.rad2deg(geometry.rotation_error_rad(des, est.T_c_o))
+            say(f"desired pose is {d_mm:.1f} mm / {d_deg:.1f} deg from the tracked one: the arm will move to it")
+        say(f"servoing for {cfg.duration_s:.2f} s at {cfg.rate_hz:.0f} Hz" + (" (DRY RUN)" if cfg.dry_run else ""))
+        # No cyclic garbage collection while servoing: a full collection can take longer than a period,
+        # and the loop makes no reference cycles. Collected after the arm has stopped.
+        gc.collect()
+        gc.disable()
+        stopping: str | None = None  # why the loop is braking to its end
+        stop_t = 0.0
+        v_cmd = np.zeros(6)
+        k = 0
+        while True:
+            deadline = t0 + k * period
+            now = clock()
+            if now < deadline:
+                time.sleep(deadline - now)
+                now = clock()
+            t = now - t0
+            if n >= n_max:
+                stopping = stopping or "duration"
+                break
+            # -- what ends the run --------------------------------------------------------
+            if pump.error is not None:
+                raise RuntimeError(f"event source failed: {pump.error}") from pump.error
+            if stopping is None and t >= cfg.duration_s:
+                stopping, stop_t = "duration", t
+                pbvs.stop()
+            if stopping is None and pump.ended:
+                stopping, stop_t = "end of recording", t
+                pbvs.stop()
+            # -- pose ---------------------------------------------------------------------
+            est = tracker.latest()
+            pose, p_t = None, None
+            if est.seq != last_seq:
+                last_seq = est.seq
+                if not est.lost and est.t_us > last_t_us:
+                    last_t_us = int(est.t_us)
+                    host = pump.host_time(last_t_us)
+                    p_t = min(max(host - t0, est_t + 1e-6), t)
+                    pose, est_T, est_t = est.T_c_o, est.T_c_o.copy(), p_t
+                    est_t_us = last_t_us
+            # -- control ------------------------------------------------------------------
+            T_w_e = arm.T_w_e()
+            T_w_c = T_w_e @ T_e_c
+            p_e, p_c = T_w_e[:3, 3], T_w_c[:3, 3]
+            # The twist in force (what the gate let through), as the controller's velocity state.
+            v_c_now = shift_twist(gate.last_sent, p_e, p_c) if gate is not None else v_cmd
+            cmd = pbvs.update(t, T_w_c, v_c_now, pose, p_t)
+            if cmd.state == "ok" and pose is not None:
+                last_accepted_t = p_t
+            if stopping is None and (cmd.watchdog or cmd.state == "rejected"):
+                if cmd.state == "rejected" and not cmd.watchdog:
+                    why = f"pose jump: {cmd.reason}"
+                elif est.lost:
+                    why = f"no fresh pose for {cfg.stale_after_s} s: the tracker reports the object lost"
+                else:
+                    why = f"no fresh pose for {cfg.stale_after_s} s"
+                stopping, stop_t = f"watchdog: {why}", t
+                spells.append(WatchdogSpell(t, last_accepted_t, None, None, why))
+                log.info("watchdog at %.3f s: %s; braking to a stop", t, why)
+                say(f"WATCHDOG at {t:.3f} s: {why}; braking to a stop")
+                pbvs.stop()
+            v_cmd = cmd.v_c_w
+            arm.command_twist(shift_twist(v_cmd, p_c, p_e), period)
+            # -- record ---------------------------------------------------------------------
+            rec["t_s"][n], rec["T_w_c"][n], rec["T_c_o_est"][n], rec["est_t_s"][n] = t, T_w_c, est_T, est_t
+            rec["v_cmd_w"][n], rec["est_t_us"][n] = v_cmd, est_t_us
+            rec["v_sent_w"][n] = gate.last_sent if gate is not None else shift_twist(v_cmd, p_c, p_e)
+            rec["late_s"][n] = now - deadline
+            states.append(cmd.state)
+            done_t = clock()
+            rec["cycle_s"][n] = done_t - now
+            n += 1
+            if stopping is not None:
+                at_rest = not np.any(v_cmd)
+                if at_rest and spells and spells[-1].zero_s is None and stopping.startswith("watchdog"):
+                    s = spells[-1]
+                    spells[-1] = WatchdogSpell(s.start_s, s.last_pose_s, t, None, s.reason)
+                if at_rest or t - stop_t >= cfg.max_brake_s:
+                    break
+            # -- next deadline: skip (and count) the ones already past ------------------------
+            # A cycle less than half a period late runs at once; later ones are dropped.
+            k += 1
+            behind = done_t - (t0 + k * period)
+            if behind > 0.5 * period:
+                skip = int(np.ceil(behind / period - 0.5))
+                missed += skip
+                k += skip
+        ended = stopping or "duration"
+        completed = stopping in ("duration", "end of recording")
+    except KeyboardInterrupt:
+        ended, interrupted = "interrupted (Ctrl-C)", True
+        say("interrupted: stopping the arm")
+    except TrackingError:
+        ended = "tracking not locked"
+        raise
+    except Exception as err:
+        ended, error = f"error: {err}", str(err)
+        log.error("real loop: %s; stopping the arm", err)
+        if n == 0 and des is None:
+            raise  # nothing ran: the caller reports the error
+    finally:
+        sys.setswitchinterval(switch)
+        if gc_was_enabled:
+            gc.enable()
+        try:
+            arm.stop()
+        except Exception as err:  # the link is gone: the arm's own watchdogs stop it
+            log.error("stopping the arm failed: %r", err)
+        pump.halt()
+        try:
+            tracker.stop()
+        finally:
+            tracker_t1 = clock()
+    servo_s = float(rec["t_s"][n - 1]) if n else 0.0
+    stats = tracker.stats()
+    return RealLoopResult(
+        config=cfg,
+        T_c_o_des=des if des is not None else np.eye(4),
+        **{key: v[:n].copy() for key, v in rec.items()},
+        state=states,
+        ended=ended,
+        completed=completed,
+        interrupted=interrupted,
+        error=error,
+        servo_s=servo_s,
+        missed_cycles=missed,
+        watchdog=spells,
+        tracker_steps={"lm": int(stats.get("lm_steps", 0)), "search": int(stats.get("search_steps", 0))},
+        tracker_s=max(tracker_t1 - tracker_t0, 1e-9),
+        events=pump.events,
+        events_dropped=int(stats.get("events_dropped", 0)),
+        events_time_clamped=pump.clamped,
+        gate=_gate_summary(gate),
+        wall_s=time.perf_counter() - wall0,
+        meta=dict(meta or {}),
+    )
+
+
+def _gate_summary(gate: Any) -> dict[str, Any]:
+    """Counts from the gate's history (its last ``history.maxlen`` records)."""
+    if gate is None:
+        return {}
+    hist = list(gate.history)
+    commands = [r for r in hist if r.kind == "command"]
+    return {
+        "commands": len(commands),
+        "halts": sum(r.kind == "halt" for r in hist),
+        "watchdog_halts": int(getattr(gate, "watchdog_halts", 0)),
+        "limited": {k: sum(k in r.notes for r in commands) for k in ("velocity", "acceleration", "workspace")},
+        "dry_run": bool(gate.dry_run),
+        "history_truncated": len(hist) == gate.history.maxlen,
+    }
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
+
+
+def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+    """Metrics of a run (JSON-ready); keys as in :func:`evservo.sim.episode.summarize` where the
+    concept is the same. ``gt``: ground truth of a replayed simulated recording, ``(t_us (N,),
+    T_c_o (N, 4, 4))``, to score the tracker (``gt_track_pos_rms_mm``, ``gt_track_rot_rms_deg``; None
+    without)."""
+    n = len(r.t_s)
+    gt_pos = gt_rot = None
+    if gt is not None and n:
+        from evservo.commands.track import _gt_at
+
+        k_pos, k_rot = pose_errors(r.T_c_o_est, _gt_at(gt[0], gt[1], r.est_t_us))
+        gt_pos, gt_rot = _rms(k_pos) * 1e3, float(np.rad2deg(_rms(k_rot)))
+    s_pos, s_rot = pose_errors(r.T_c_o_est, np.broadcast_to(r.T_c_o_des, (n, 4, 4)))
+    cam_rot = camera_rotation_rad(r.T_w_c)
+    d_cam = r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3] if n else np.zeros((0, 3))
+    n_steps = sum(r.tracker_steps.values())
+    nominal = r.config.rate_hz * r.servo_s
+    return {
+        "completed": r.completed,
+        "ended": r.ended,
+        "error": r.error,
+        "interrupted": r.interrupted,
+        "dry_run": r.config.dry_run,
+        "servo_s": r.servo_s,
+        "servo_pos_rms_mm": _rms(s_pos) * 1e3,
+        "servo_rot_rms_deg": float(np.rad2deg(_rms(s_rot))),
+        "servo_pos_max_mm": float(np.max(s_pos) * 1e3) if n else float("nan"),
+        "gt_track_pos_rms_mm": gt_pos,
+        "gt_track_rot_rms_deg": gt_rot,
+        "camera_rot_mean_deg": float(np.rad2deg(np.mean(cam_rot))) if n else float("nan"),
+        "camera_travel_max_m": float(np.max(np.linalg.norm(d_cam, axis=1))) if n else 0.0,
+        "tracker_rate_hz": n_steps / r.tracker_s,
+        "tracker_steps": r.tracker_steps,
+        "pose_age_mean_ms": float(np.mean(r.t_s - r.est_t_s) * 1e3) if n else float("nan"),
+        "pose_age_max_ms": float(np.max(r.t_s - r.est_t_s) * 1e3) if n else float("nan"),
+        "events": r.events,
+        "events_dropped": r.events_dropped,
+        "events_time_clamped": r.events_time_clamped,
+        "watchdog": [asdict(w) for w in r.watchdog],
+        "control_rate_hz": r.config.rate_hz,
+        "control_cycles": n,
+        "missed_cycles": r.missed_cycles,
+        "missed_fraction": r.missed_cycles / nominal if nominal > 0 else 0.0,
+        "late_mean_ms": float(np.mean(r.late_s) * 1e3) if n else float("nan"),
+        "cycle_time_mean_ms": float(np.mean(r.cycle_s) * 1e3) if n else float("nan"),
+        "cycle_time_max_ms": float(np.max(r.cycle_s) * 1e3) if n else float("nan"),
+        "gate": r.gate,
+        "T_c_o_des": r.T_c_o_des.tolist(),
+        "wall_s": r.wall_s,
+        **r.meta,
+        "config": asdict(r.config),
+        "versions": {"evservo": _evcore.__version__},
+    }
+
+
+def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None = None) -> dict[str, Path]:
+    """Write ``summary.json``, ``log.csv`` (``config.log_rate_hz`` rows per second, plus every
+    cycle whose controller state was not ``ok``) and ``motion.png`` (:func:`plot_motion`) into
+    ``out_dir``; returns their paths by name.
+
+    ``log.csv``: camera position (world, m), estimate ``T_c_o`` translation (m), servo error (mm, deg),
+    pose age (ms), norms of the controller's camera twist and of the end-effector twist the gate let
+    through (m/s, deg/s), that twist's components in the robot base frame (in a dry run: what would
+    have been sent — check its directions before the first real run), cycle time and lateness (ms),
+    the controller's state."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
+    summary = summary if summary is not None else summarize(r)
+    paths["summary"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    n = len(r.t_s)
+    every = max(1, round(r.config.rate_hz / r.config.log_rate_hz))
+    keep = np.zeros(n, bool)
+    keep[::every] = True
+    keep |= np.array([s != "ok" for s in r.state], bool)
+    if n:
+        keep[-1] = True
+    k = np.flatnonzero(keep)
+    s_pos, s_rot = pose_errors(r.T_c_o_est[k], np.broadcast_to(r.T_c_o_des, (len(k), 4, 4)))
+    header = [
+        "t_s", "cam_x_m", "cam_y_m", "cam_z_m", "est_x_m", "est_y_m", "est_z_m", "servo_pos_mm",
+        "servo_rot_deg", "pose_age_ms", "v_cmd_mps", "w_cmd_dps", "v_sent_mps", "w_sent_dps",
+        "sent_vx_mps", "sent_vy_mps", "sent_vz_mps", "sent_wx_dps", "sent_wy_dps", "sent_wz_dps", "cycle_ms",
+        "late_ms", "state",
+    ]  # fmt: skip
+    with paths["log"].open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for j, i in enumerate(k):
+            row = [
+                r.t_s[i], *r.T_w_c[i, :3, 3], *r.T_c_o_est[i, :3, 3], s_pos[j] * 1e3, np.rad2deg(s_rot[j]),
+                (r.t_s[i] - r.est_t_s[i]) * 1e3, np.linalg.norm(r.v_cmd_w[i, :3]),
+                np.rad2deg(np.linalg.norm(r.v_cmd_w[i, 3:])), np.linalg.norm(r.v_sent_w[i, :3]),
+                np.rad2deg(np.linalg.norm(r.v_sent_w[i, 3:])), *r.v_sent_w[i, :3], *np.rad2deg(r.v_sent_w[i, 3:]),
+                r.cycle_s[i] * 1e3, r.late_s[i] * 1e3,
+            ]  # fmt: skip
+            w.writerow([f"{v:.6g}" for v in row] + [r.state[i]])
+    plot_motion(r, paths["motion"])
+    return paths
+
+
+def plot_motion(r: RealLoopResult, path: str | Path) -> None:
+    """The paper's Fig. 5 as far as a real run can draw it: camera and object (camera pose · estimate)
+    displacement along each world axis from servo start (mm), the camera's rotation (deg), and the
+    watchdog spells shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = r.t_s
+    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(8, 8), constrained_layout=True)
+    if len(t):
+        d_cam = (r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3]) * 1e3
+        recon = r.T_w_c @ r.T_c_o_est
+        d_obj = (recon[:, :3, 3] - recon[:1, :3, 3]) * 1e3
+        for i, name in enumerate("xyz"):
+            axes[i].plot(t, d_cam[:, i], color="tab:blue", label="camera")
+            axes[i].plot(t, d_obj[:, i], color="tab:orange", ls=":", label="object (camera · estimate)")
+            axes[i].set_ylabel(f"{name} (mm)")
+        axes[3].plot(t, np.rad2deg(camera_rotation_rad(r.T_w_c)), color="tab:blue")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        for w in r.watchdog:
+            ax.axvspan(w.start_s, w.zero_s if w.zero_s is not None else w.start_s, color="red", alpha=0.2)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[3].set_ylabel("camera rot. (deg)")
+    axes[3].set_xlabel("time since servo start (s)")
+    fig.suptitle(f"{r.meta.get('robot', 'arm')}, {r.meta.get('camera', 'camera')}: {r.ended}", fontsize=10)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,136 @@
+"""A kinematic stand-in arm: no robot, no physics, just the commanded twist integrated over wall time.
+
+``evservo servo --robot sim`` uses it to run the real loop (live camera or a recording replayed at
+real time, threaded tracker, controller at a fixed rate) with nothing to break: the end effector
+holds each twist the :class:`~evservo.robots.safety.SafetyGate` lets through until the next one, and
+its pose is that twist integrated exactly over the elapsed time (constant world-frame twist of the
+end-effector origin: the position moves linearly, the orientation turns about a fixed world axis).
+The gate's limits, workspace and watchdog act as they would on a real arm. A halt is immediate (an
+ideal arm); ``dry_run`` keeps the arm where it is and only logs.
+
+Note: a recording cannot see the arm move, so with a replayed file the loop is open: the commands
+follow the object in the recording, not a scene the camera is really looking at.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from evservo import geometry
+from evservo.control import CartesianLimits, rotmat
+from evservo.robots.safety import SafetyGate, Workspace
+
+__all__ = ["DEFAULT_START", "KinematicArm"]
+
+#: Default start pose of the end effector (world frame): 0.4 m in front of the base, 0.4 m up, the
+#: tool pointing down (z axis along −z of the world), as a UR or Franka in a usual home pose.
+DEFAULT_START = np.array([[1.0, 0.0, 0.0, 0.4], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.4], [0.0, 0.0, 0.0, 1.0]])
+
+
+class KinematicArm:
+    """An ideal velocity-controlled arm behind a :class:`SafetyGate` (see the module docstring).
+
+    ``T_w_e0``: start pose of the end effector (4×4, metres; default :data:`DEFAULT_START`, or the
+    centre of ``workspace`` tool down if one is given). ``T_e_c``: camera in the end effector.
+    ``clock``: monotonic seconds (injectable for tests). :attr:`commands` counts the twists that
+    reached the arm (never incremented in dry run).
+    """
+
+    def __init__(
+        self,
+        T_w_e0: np.ndarray | None = None,
+        T_e_c: np.ndarray | None = None,
+        limits: CartesianLimits | None = None,
+        workspace: Workspace | None = None,
+        dry_run: bool = False,
+        watchdog_s: float = 0.05,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if T_w_e0 is None:
+            T_w_e0 = DEFAULT_START.copy()
+            if workspace is not None:
+                T_w_e0[:3, 3] = 0.5 * (workspace.lo + workspace.hi)
+        self._T = geometry.as_pose(T_w_e0, "T_w_e0").copy()
+        self._T_e_c = geometry.as_pose(np.eye(4) if T_e_c is None else T_e_c, "T_e_c")
+        self.limits = limits or CartesianLimits()
+        self.dry_run = dry_run
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._v = np.zeros(6)
+        self._t = clock()
+        self.commands = 0
+        self.halts = 0
+        self.gate = SafetyGate(self._send, self._halt, self.limits, workspace, watchdog_s, dry_run, name="sim arm")
+        self.gate.open()
+
+    # -- integration ---------------------------------------------------------------------------
+
+    def _advance(self) -> None:
+        """Move the pose to now with the twist held since the last change (lock held)."""
+        now = self._clock()
+        dt = now - self._t
+        self._t = now
+        if dt <= 0 or not np.any(self._v):
+            return
+        self._T[:3, 3] += self._v[:3] * dt
+        self._T[:3, :3] = rotmat(self._v[3:] * dt) @ self._T[:3, :3]
+
+    def _send(self, v: np.ndarray, dt_s: float) -> None:
+        with self._lock:
+            self._advance()
+            self._v = np.asarray(v, dtype=float).copy()
+            self.commands += 1
+
+    def _halt(self) -> None:
+        with self._lock:
+            self._advance()
+            self._v = np.zeros(6)
+            self.halts += 1
+
+    # -- Arm protocol --------------------------------------------------------------------------
+
+    @property
+    def T_e_c(self) -> np.ndarray:
+        """Camera frame in the end-effector frame (4×4, metres)."""
+        return self._T_e_c.copy()
+
+    def T_w_e(self) -> np.ndarray:
+        """End-effector pose in the world now (4×4, metres)."""
+        with self._lock:
+            self._advance()
+            return self._T.copy()
+
+    def T_w_c(self) -> np.ndarray:
+        """Camera pose in the world now (4×4, metres)."""
+        return self.T_w_e() @ self._T_e_c
+
+    def joint_positions(self) -> np.ndarray:
+        """A kinematic arm has no joints: an empty array."""
+        return np.zeros(0)
+
+    def twist_w(self) -> np.ndarray:
+        """The end-effector twist in force (world frame; m/s, rad/s)."""
+        with self._lock:
+            return self._v.copy()
+
+    def command_twist(self, v_e_w: np.ndarray, dt_s: float) -> None:
+        """Hold end-effector twist ``v_e_w`` (world frame, (6,)), limited by the gate, from now on."""
+        self.gate.command(v_e_w, self.T_w_e()[:3, 3], dt_s)
+
+    def stop(self) -> None:
+        """Stop at once (an ideal arm)."""
+        self.gate.stop()
+
+    def close(self) -> None:
+        """Stop and end the gate's watchdog (idempotent)."""
+        self.gate.close()
+
+    def __enter__(self) -> KinematicArm:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
