@@ -4,10 +4,9 @@
 use crate::camera::PyCamera;
 use crate::errors::to_py;
 use crate::model::{pose_arg, PyMesh};
-use evcore::se3::{pose_from_matrix, Pose};
-use std::sync::Arc;
 use crate::sim::{pack_event_cd, params_from, to_event_cd};
 use evcore::render::RenderOptions;
+use evcore::se3::{pose_from_matrix, Pose};
 use evcore::sim::camera::{Background, BackgroundPlane, SimCamera};
 use evcore::EventBatch;
 use numpy::ndarray::Array2;
@@ -15,6 +14,7 @@ use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use std::sync::Arc;
 
 #[pyclass(name = "SimCamera", module = "evservo._evcore")]
 pub struct PySimCamera {
@@ -90,7 +90,10 @@ impl PySimCamera {
     ) -> PyResult<Bound<'py, PyAny>> {
         let pose = pose_arg(&T_c_o)?;
         let bg = T_c_bg.map(|m| pose_arg(&m)).transpose()?;
-        let occ = occluders.map(|a| poses_arg(&a)).transpose()?.unwrap_or_default();
+        let occ = occluders
+            .map(|a| poses_arg(&a))
+            .transpose()?
+            .unwrap_or_default();
         let (inner, out) = (&mut self.inner, &mut self.out);
         let bytes = py
             .detach(|| {
