@@ -30,9 +30,9 @@ from evservo import _evcore, geometry
 from evservo.sim.scene import DualArmScene
 
 EXCLUDED_BODIES = ("panda_link7", "panda_right_hand")
-# Side of the vertex-clustering cells (m). The IMX636 model has f ≈ 1160 px, so 5 mm is ~6 px at 1 m:
-# link silhouettes move by at most that, at the bench's 0.6–1.5 m, while the triangle count drops
-# from 250 000 to 63 000 (rendering and ROI bounds scale with it).
+# Side of the vertex-clustering cells (m). A vertex moves to its cell's mean, less than a cell diagonal
+# (8.7 mm) and typically a few mm: with the IMX636 model's f ≈ 1160 px that is a few pixels of
+# silhouette at the bench's 0.6–1.5 m, while the triangle count drops from ~250 000 to ~63 000.
 DECIMATION_CELL_M = 0.005
 MIN_ALBEDO, MAX_ALBEDO = 0.1, 0.85
 

@@ -6,7 +6,9 @@ source on every batch even while it drops the output (an injected dropout), so a
 whatever per-pixel state it needs.
 
 Sources are registered by name in :data:`EVENT_SOURCES`; a new one (e.g. a rendered ESIM camera) is
-a callable with the :class:`SourceFactory` signature added there.
+a callable with the :class:`SourceFactory` signature added there. The ``render`` source can also draw
+the robot arms (``make_event_source(..., arms=ArmMeshes(scene))``); its ``events_until`` then also
+takes the links' poses in the camera (``occluders``).
 """
 
 from __future__ import annotations
