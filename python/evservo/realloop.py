@@ -23,8 +23,9 @@ t_event / speed)`` over batches (the least delayed batch bounds the offset from 
 age is ``now − (offset + t_pose / speed)``; a pose is passed on once (by its time stamp), never dated
 after ``now`` and never before the previous one.
 
-Sequence: the tracker starts from ``T_c_o_init`` and tracks for ``settle_s`` while the arm stays
-still; it must have published a pose the tracker itself does not flag as lost. Then servoing starts:
+Sequence: the tracker starts from ``T_c_o_init``; once the first events have reached it (within
+``start_timeout_s``) it tracks for ``settle_s`` while the arm stays still, and must then have
+published a pose the tracker itself does not flag as lost. Then servoing starts:
 the desired pose ``T_c_o_des`` is the tracked pose at that instant unless given. Servoing ends, with
 the commanded twist braked to zero at the acceleration limit and then an explicit arm stop, on:
 
@@ -80,7 +81,8 @@ class RealLoopConfig:
     """How to run the real loop. Times in seconds, rates in Hz.
 
     ``rate_hz``: control rate (the period is also the hold time of each command).
-    ``settle_s``: tracking before servoing, arm still. ``duration_s``: servoing time.
+    ``settle_s``: tracking before servoing, arm still, counted from the first pose.
+    ``start_timeout_s``: longest wait for the source's first events. ``duration_s``: servoing time.
     ``stiffness``: k of Eq. 6 (1/s²). ``feedforward``: feed the target's estimated motion forward.
     ``stale_after_s``, ``max_jump_m``, ``max_jump_rad``: the controller's watchdog and jump gate.
     ``max_brake_s``: longest braking before the arm is stopped outright.
@@ -91,6 +93,7 @@ class RealLoopConfig:
 
     rate_hz: float = 500.0
     settle_s: float = 0.5
+    start_timeout_s: float = 5.0
     duration_s: float = 20.0
     stiffness: float = 20.0
     feedforward: bool = False
@@ -107,6 +110,7 @@ class RealLoopConfig:
             rate_hz=self.rate_hz, duration_s=self.duration_s, stiffness=self.stiffness,
             stale_after_s=self.stale_after_s, max_jump_m=self.max_jump_m, max_jump_rad=self.max_jump_rad,
             max_brake_s=self.max_brake_s, speed=self.speed, log_rate_hz=self.log_rate_hz,
+            start_timeout_s=self.start_timeout_s,
         )  # fmt: skip
         for name, v in positive.items():
             if not (np.isfinite(v) and v > 0):
@@ -167,6 +171,16 @@ class RealLoopResult:
     gate: dict[str, Any]
     wall_s: float
     meta: dict[str, Any] = field(default_factory=dict)
+
+
+def _wait(clock: Callable[[], float], until: float, pump: _CameraPump, done: Callable[[], bool]) -> None:
+    """Sleep until ``clock() >= until`` or ``done()``; raise the camera's error, or if it ended."""
+    while clock() < until and not done():
+        if pump.error is not None:
+            raise pump.error
+        if pump.done.is_set():
+            raise TrackingError("the event source ended during the settle time")
+        time.sleep(0.002)
 
 
 class _CameraPump(threading.Thread):
@@ -274,19 +288,19 @@ def run_real_loop(
         sys.setswitchinterval(min(switch, 0.0005))
         pump.start()
         # -- settle: track, arm still -------------------------------------------------------
+        # A camera (or a file being opened) takes a while to deliver its first events; the settle
+        # time counts from the first pose, so a slow start is not mistaken for a blind tracker.
+        say(f"waiting up to {cfg.start_timeout_s:.1f} s for the first events")
+        _wait(
+            clock, clock() + cfg.start_timeout_s, pump, lambda: pump.offset_s is not None and tracker.latest().seq > 0
+        )
+        if pump.offset_s is None or tracker.latest().seq == 0:
+            raise TrackingError(f"no pose {cfg.start_timeout_s} s after start: no events reached the tracker")
         say(f"settling: tracking for {cfg.settle_s:.2f} s before moving")
-        settle_end = clock() + cfg.settle_s
-        while clock() < settle_end:
-            if pump.error is not None:
-                raise pump.error
-            if pump.done.is_set():
-                raise TrackingError("the event source ended during the settle time")
-            time.sleep(0.002)
+        _wait(clock, clock() + cfg.settle_s, pump, lambda: False)
         if pump.error is not None:
             raise pump.error
         est = tracker.latest()
-        if est.seq == 0 or pump.offset_s is None:
-            raise TrackingError(f"no pose after {cfg.settle_s} s of settling: no events reached the tracker")
         if est.lost:
             raise TrackingError(
                 f"the tracker lost the object while settling (inlier fraction {est.inlier_fraction:.2f}): "

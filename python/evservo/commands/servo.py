@@ -153,7 +153,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--init-pose", metavar="x,y,z,qx,qy,qz,qw", help="object in camera at start (default: config's)")
     r.add_argument("--desired-pose", metavar="x,y,z,qx,qy,qz,qw",
                    help="object in camera to servo to (default: the tracked pose when servoing starts)")  # fmt: skip
-    r.add_argument("--settle", type=float, help="seconds of tracking before the arm moves (default 0.5)")
+    r.add_argument("--settle", type=float, help="tracking before the arm moves, s from the first pose (default 0.5)")
     r.add_argument("--stiffness", type=float, help="k of Eq. 6, 1/s² (default 20, the paper's)")
     r.add_argument("--rate", type=float, help="control rate, Hz (default 500)")
     r.add_argument("--stale-after", type=float, help="watchdog: stop when no fresh pose for this long, s (default 0.1)")
