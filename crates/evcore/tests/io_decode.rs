@@ -2,13 +2,19 @@
 //! property tests: no byte input panics, and any chunking decodes like one call.
 //!
 //! The recordings' expected values come from independent decoders (see the samples' README);
-//! the bit-exact SHA3 digests are asserted by tests/test_io.py. `PROPTEST_CASES` sets the
-//! number of property cases (default 256 per property here; raise it for a long run).
+//! the bit-exact SHA3 digests are asserted by tests/test_io.py.
+//!
+//! The `fuzz_` properties feed random, truncated and corrupted byte streams to both decoders and
+//! the file reader: every input must end in events or an error, never a panic or a hang.
+//! `EVSERVO_FUZZ_CASES` sets their case count (default 256 each, for CI); `make bench` runs
+//! `EVSERVO_FUZZ_CASES=1000000 cargo test --release -p evcore --test io_decode fuzz_`.
+//! `PROPTEST_CASES` sets the count of the slower whole-recording property (default 256).
 
 use evcore::io::{Decoder, Evt2Decoder, Evt3Decoder, Format, RawReader};
 use evcore::{Error, EventBatch};
 use proptest::prelude::*;
 use std::path::PathBuf;
+use std::sync::OnceLock;
 
 fn samples_dir() -> PathBuf {
     match std::env::var_os("EVSERVO_SAMPLES") {
@@ -323,44 +329,97 @@ fn decode_chunked(format: Format, bytes: &[u8], cuts: &[usize]) -> (EventBatch, 
     (out, Ok(()))
 }
 
-fn format_strategy() -> impl Strategy<Value = Format> {
-    prop_oneof![Just(Format::Evt2), Just(Format::Evt3)]
+/// Cases per `fuzz_` property: `EVSERVO_FUZZ_CASES`, else a CI-sized default.
+fn fuzz_cases() -> u32 {
+    std::env::var("EVSERVO_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(256)
+}
+
+/// The data words of the three recordings (header stripped) with their formats, read once per
+/// test process; empty when the samples are not installed.
+fn sample_streams() -> &'static [(Format, Vec<u8>)] {
+    static STREAMS: OnceLock<Vec<(Format, Vec<u8>)>> = OnceLock::new();
+    STREAMS.get_or_init(|| {
+        [
+            (EVT3, Format::Evt3),
+            (EVT2_A, Format::Evt2),
+            (EVT2_B, Format::Evt2),
+        ]
+        .into_iter()
+        .filter_map(|(name, format)| Some((format, data_of(&sample(name)?).to_vec())))
+        .collect()
+    })
+}
+
+/// Word size of a format in bytes.
+fn word_bytes(format: Format) -> usize {
+    match format {
+        Format::Evt2 => 4,
+        Format::Evt3 => 2,
+    }
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(
-        std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(256)
-    ))]
+    #![proptest_config(ProptestConfig {
+        cases: fuzz_cases(),
+        // Shrinking a failure of a million-case run can take longer than the run: report it as found.
+        max_shrink_iters: 256,
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    })]
 
+    /// Random bytes through both decoders, whole and cut in random pieces: the same events and
+    /// the same error either way (a panic fails the test).
     #[test]
-    fn random_bytes_never_panic_and_chunking_is_invisible(
-        format in format_strategy(),
+    fn fuzz_random_bytes_never_panic_and_chunking_is_invisible(
         bytes in prop::collection::vec(any::<u8>(), 0..4096),
         mut cuts in prop::collection::vec(0usize..4096, 0..16),
     ) {
         cuts.sort_unstable();
-        let whole = decode_whole(format, &bytes);
-        prop_assert_eq!(decode_chunked(format, &bytes, &cuts), whole);
+        for format in [Format::Evt2, Format::Evt3] {
+            let whole = decode_whole(format, &bytes);
+            prop_assert_eq!(decode_chunked(format, &bytes, &cuts), whole);
+        }
     }
 
+    /// Windows of the real recordings, cut at any byte at both ends (so mid-word and without the
+    /// stream's earlier state) and optionally with a few bytes overwritten. Untouched windows
+    /// that start on a word boundary hold valid words and must decode without error.
     #[test]
-    fn real_files_split_or_truncated_decode_like_one_shot(
+    fn fuzz_truncated_and_corrupted_real_streams(
         which in 0usize..3,
-        keep in 0.0f64..=1.0,
-        mut cuts in prop::collection::vec(0usize..3_000_000, 0..12),
+        start in any::<prop::sample::Index>(),
+        len in 0usize..16_384,
+        flips in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 0..4),
+        mut cuts in prop::collection::vec(0usize..16_384, 0..8),
     ) {
-        let (name, format) = [(EVT3, Format::Evt3), (EVT2_A, Format::Evt2), (EVT2_B, Format::Evt2)][which];
-        let Some(bytes) = sample(name) else { return Ok(()) };
-        let data = data_of(&bytes);
-        let data = &data[..(data.len() as f64 * keep) as usize];
+        let streams = sample_streams();
+        if streams.is_empty() {
+            return Ok(());
+        }
+        let (format, data) = &streams[which % streams.len()];
+        let start = start.index(data.len());
+        let mut window = data[start..(start + len).min(data.len())].to_vec();
+        if !window.is_empty() {
+            for (at, byte) in &flips {
+                let at = at.index(window.len());
+                window[at] = *byte;
+            }
+        }
         cuts.sort_unstable();
-        let whole = decode_whole(format, data);
-        prop_assert!(whole.1.is_ok());
-        prop_assert_eq!(decode_chunked(format, data, &cuts), whole);
+        let whole = decode_whole(*format, &window);
+        if flips.is_empty() && start % word_bytes(*format) == 0 {
+            prop_assert!(whole.1.is_ok(), "{:?}", whole.1);
+        }
+        prop_assert_eq!(decode_chunked(*format, &window, &cuts), whole);
     }
 
+    /// Any header + body through the file reader, read in slices of any size: it ends, and
+    /// every event it returns lies on the sensor.
     #[test]
-    fn reader_survives_any_file(
+    fn fuzz_reader_survives_any_file(
         header in prop::sample::select(vec![
             &b"% evt 3.0\n% geometry 64x32\n"[..],
             b"% format EVT2;width=64;height=32\n% end\n",
@@ -379,5 +438,31 @@ proptest! {
             prop_assert!(out.x.iter().all(|&x| u32::from(x) < r.width()));
             prop_assert!(out.y.iter().all(|&y| u32::from(y) < r.height()));
         }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(
+        std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(256)
+    ))]
+
+    /// Whole recordings, truncated at any point and cut anywhere, decode like one call and
+    /// without error (a property over the full files, too slow for a million cases).
+    #[test]
+    fn real_files_split_or_truncated_decode_like_one_shot(
+        which in 0usize..3,
+        keep in 0.0f64..=1.0,
+        mut cuts in prop::collection::vec(0usize..3_000_000, 0..12),
+    ) {
+        let streams = sample_streams();
+        if streams.is_empty() {
+            return Ok(());
+        }
+        let (format, data) = &streams[which % streams.len()];
+        let data = &data[..(data.len() as f64 * keep) as usize];
+        cuts.sort_unstable();
+        let whole = decode_whole(*format, data);
+        prop_assert!(whole.1.is_ok());
+        prop_assert_eq!(decode_chunked(*format, data, &cuts), whole);
     }
 }
