@@ -36,6 +36,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from evservo import aedat4
 from evservo._evcore import DecodeError, RawReader
 
 __all__ = ["EVENT_CD", "DecodeError", "info", "open_events", "read_events", "write_events"]
@@ -54,7 +55,8 @@ ECF_FILTER_ID = 0x8ECF
 
 _RAW_BLOCK_EVENTS = 1 << 20
 _H5_SUFFIXES = (".h5", ".hdf5")
-_SUFFIXES = (".raw", ".npz", ".npy", *_H5_SUFFIXES)
+_AEDAT_SUFFIX = ".aedat4"
+_SUFFIXES = (".raw", _AEDAT_SUFFIX, ".npz", ".npy", *_H5_SUFFIXES)
 
 
 def _checked_path(path: str | os.PathLike) -> tuple[Path, str]:
@@ -240,6 +242,22 @@ def _block_time_slices(blocks: Iterator[np.ndarray], delta_t_us: int) -> Iterato
         yield np.concatenate(carry, dtype=EVENT_CD)
 
 
+def _rechunked(blocks: Iterator[np.ndarray], n: int) -> Iterator[np.ndarray]:
+    """Blocks of any sizes regrouped into slices of exactly ``n`` events (the last one shorter)."""
+    pending, count = [], 0
+    for block in blocks:
+        while len(block):
+            take = min(n - count, len(block))
+            pending.append(block[:take])
+            count += take
+            block = block[take:]
+            if count == n:
+                yield np.concatenate(pending, dtype=EVENT_CD)
+                pending, count = [], 0
+    if count:
+        yield np.concatenate(pending, dtype=EVENT_CD)
+
+
 def _array_time_slices(events: np.ndarray, delta_t_us: int) -> Iterator[np.ndarray]:
     if len(events) == 0:
         return
@@ -284,6 +302,12 @@ def open_events(
         if n_events is not None:
             return _h5_blocks(p, n_events)
         return _block_time_slices(_h5_blocks(p, _RAW_BLOCK_EVENTS), delta_t_us)
+    if suffix == _AEDAT_SUFFIX:
+        # The header and packet chain are checked here, before the first slice is asked for.
+        blocks = aedat4.iter_blocks(p, aedat4.read_header(p))
+        if n_events is not None:
+            return _rechunked(blocks, n_events)
+        return _block_time_slices(blocks, delta_t_us)
     events = _load_array(p, suffix)[0]
     if n_events is not None:
         return (events[i : i + n_events] for i in range(0, len(events), n_events))
@@ -297,14 +321,17 @@ def read_events(path: str | os.PathLike) -> np.ndarray:
         blocks = list(_raw_blocks(p, _RAW_BLOCK_EVENTS))
         # numpy would otherwise drop EVENT_CD's padding and return a packed 14-byte dtype.
         return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
+    if suffix == _AEDAT_SUFFIX:
+        blocks = list(aedat4.iter_blocks(p))
+        return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
     return _load_array(p, suffix)[0]
 
 
 def info(path: str | os.PathLike) -> dict:
-    """Format, sensor size and extent of an event file (RAW files are decoded once to count).
+    """Format, sensor size and extent of an event file (RAW and AEDAT4 files are decoded once to count).
 
-    Keys: ``format`` ("EVT2", "EVT3", "npz", "npy", "hdf5" or "metavision-hdf5"), ``width``,
-    ``height`` (pixels), ``n_events``, ``t_first_us``, ``t_last_us`` (None when empty) and
+    Keys: ``format`` ("EVT2", "EVT3", "aedat4", "npz", "npy", "hdf5" or "metavision-hdf5"),
+    ``width``, ``height`` (pixels), ``n_events``, ``t_first_us``, ``t_last_us`` (None when empty) and
     ``geometry_inferred`` (True when the size was taken as max+1 of the coordinates).
     """
     p, suffix = _checked_path(path)
@@ -322,6 +349,18 @@ def info(path: str | os.PathLike) -> dict:
         )  # fmt: skip
     if suffix in _H5_SUFFIXES and _is_our_h5(p):
         return _h5_info(p)
+    if suffix == _AEDAT_SUFFIX:
+        header = aedat4.read_header(p)
+        n, t_first, t_last = 0, None, None
+        for block in aedat4.iter_blocks(p, header):
+            if len(block):
+                t_first = int(block["t"][0]) if t_first is None else t_first
+                t_last = int(block["t"][-1])
+                n += len(block)
+        return dict(
+            format="aedat4", width=header.width, height=header.height, n_events=n,
+            t_first_us=t_first, t_last_us=t_last, geometry_inferred=False,
+        )  # fmt: skip
     events, width, height, inferred, layout = _load_array(p, suffix)
     empty = len(events) == 0
     return dict(
