@@ -135,10 +135,11 @@ def _streams_from_description(p: Path, xml: str) -> tuple[dict[int, str], dict[i
         if kind in ("EVTS", "FRME"):
             info = next((n for n in node.findall("node") if n.get("name") == "info"), None)
             attrs = {} if info is None else {a.get("key"): (a.text or "") for a in info.findall("attr")}
-            try:
-                w, h = int(attrs["sizeX"]), int(attrs["sizeY"])
-            except (KeyError, ValueError) as e:
-                raise fail(f"stream {sid} ({kind}) has no valid sizeX/sizeY: {e!r}") from e
+            size_x, size_y = attrs.get("sizeX", ""), attrs.get("sizeY", "")
+            # Plain digits only: the decoder parses them as u16 and rejects anything else.
+            if not (size_x.isascii() and size_x.isdigit() and size_y.isascii() and size_y.isdigit()):
+                raise fail(f"stream {sid} ({kind}) has no valid sizeX/sizeY (got {size_x!r}, {size_y!r})")
+            w, h = int(size_x), int(size_y)
             if not (0 < w < 65536 and 0 < h < 65536):
                 raise fail(f"stream {sid} has sensor size {w}x{h}")
             sizes[sid] = (w, h)
@@ -186,6 +187,16 @@ def read_header(path: str | os.PathLike) -> Aedat4Info:
         if not event_ids:
             raise DecodeError(f"{p}: the AEDAT4 file has no event (EVTS) stream; streams: {types}")
 
+        if data_table != -1 and compression == 0:
+            # The table (a size-prefixed flatbuffer indexing the packets) is not read, but a file
+            # cut inside it is still a truncated file. (Compressed files compress it too.)
+            f.seek(data_table)
+            prefix = f.read(4)
+            table_len = _U32.unpack(prefix)[0] if len(prefix) == 4 else None
+            if table_len is None or data_table + 4 + table_len > size:
+                raise DecodeError(
+                    f"{p}: truncated AEDAT4 file: it ends inside the file data table at byte {data_table}"
+                )
         # The packet chain must tile the file up to the data table (or its end) exactly.
         end = size if data_table == -1 else data_table
         pos, n_packets = data_start, 0
