@@ -15,7 +15,9 @@ Formats, chosen by file extension:
     max(y)+1 and :func:`info` reports ``geometry_inferred=True``.
 ``.h5`` / ``.hdf5``, our layout
     Group ``/events`` with 1-D datasets ``x`` (u16), ``y`` (u16), ``p`` (i16), ``t`` (i64, µs), all
-    gzip-compressed and chunked, and integer attributes ``width`` and ``height`` on ``/events``.
+    chunked and compressed as :data:`H5_COMPRESSION` says (Blosc + zstd through ``hdf5plugin`` by
+    default; files written with gzip or uncompressed read too), and integer attributes ``width``
+    and ``height`` on ``/events``.
 ``.h5`` / ``.hdf5``, Metavision layout (read only)
     Compound dataset ``/CD/events`` with fields x, y, p, t. Geometry from the root attribute
     ``geometry`` ("WxH") or ``width``/``height``, else inferred as for ``.npy``. Files compressed
@@ -30,10 +32,11 @@ from __future__ import annotations
 
 import os
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import h5py
+import hdf5plugin
 import numpy as np
 
 from evservo import aedat4
@@ -53,7 +56,27 @@ EVENT_CD = np.dtype(
 #: HDF5 filter id of Prophesee's ECF codec used by Metavision HDF5 files.
 ECF_FILTER_ID = 0x8ECF
 
+#: How the HDF5 files evservo writes (:func:`write_events` and the recordings of
+#: :mod:`evservo.sim.record`) compress their event columns: keyword arguments for h5py's
+#: ``create_dataset``, set once here for every writer. The default is Blosc with zstd level 5 and
+#: bit-shuffle (HDF5 filter 32001 from ``hdf5plugin``): on the real EVT3 recording 14 % of the raw
+#: column size, smaller than gzip's 17 %, and about twice as fast to read and write. Importing this
+#: module imports ``hdf5plugin``, which registers its filters (Blosc, Blosc2, Zstd, LZ4,
+#: Bitshuffle, ...) with HDF5, so such files from other tools read too. Other programs need
+#: ``hdf5plugin`` (or the Blosc plugin on ``HDF5_PLUGIN_PATH``) to read these files; set
+#: ``{"compression": "gzip"}`` for files any HDF5 reader opens, or ``{}`` for no compression.
+H5_COMPRESSION: Mapping[str, object] = hdf5plugin.Blosc(cname="zstd", clevel=5, shuffle=hdf5plugin.Blosc.BITSHUFFLE)
+
+
+def h5_compression_options() -> dict[str, object]:
+    """:data:`H5_COMPRESSION` as a plain dict of ``create_dataset`` keyword arguments, read at
+    call time so that changing the module attribute affects every later write."""
+    return dict(H5_COMPRESSION or {})
+
+
 _RAW_BLOCK_EVENTS = 1 << 20
+#: Events per HDF5 chunk in files written by :func:`write_events` (1 MB of ``t``).
+_H5_CHUNK_EVENTS = 1 << 17
 _H5_SUFFIXES = (".h5", ".hdf5")
 _AEDAT_SUFFIX = ".aedat4"
 _SUFFIXES = (".raw", _AEDAT_SUFFIX, ".npz", ".npy", *_H5_SUFFIXES)
@@ -416,6 +439,8 @@ def write_events(path: str | os.PathLike, events: np.ndarray, width: int, height
             g.attrs["width"] = int(width)
             g.attrs["height"] = int(height)
             # HDF5 cannot chunk (hence compress) an empty dataset.
-            options = {"compression": "gzip"} if len(events) else {}
+            options = h5_compression_options() if len(events) else {}
+            if options:
+                options.setdefault("chunks", (min(len(events), _H5_CHUNK_EVENTS),))
             for name in EVENT_CD.names:
                 g.create_dataset(name, data=events[name], **options)
