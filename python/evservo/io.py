@@ -7,7 +7,12 @@ Formats, chosen by file extension:
 
 ``.raw``
     Prophesee RAW, EVT 2.0 or EVT 3.0, decoded by the Rust core (``evservo._evcore.RawReader``)
-    with the GIL released. Geometry comes from the header. Read only.
+    with the GIL released. Geometry comes from the header; a ``% t0`` header line (faery writes
+    times relative to it) is added back to every timestamp. Read only.
+``.aedat4``
+    iniVation AEDAT4 (DV), read through the ``aedat`` package after :mod:`evservo.aedat4` has
+    checked the file's header, stream description and packet framing. Events of the first event
+    stream; the sensor size from its description; ``on`` becomes ``p``. Read only.
 ``.npz`` (ours)
     ``events``: an EVENT_CD array; ``width``, ``height``: 0-d integer arrays. Written compressed.
 ``.npy``
@@ -22,7 +27,11 @@ Formats, chosen by file extension:
     Compound dataset ``/CD/events`` with fields x, y, p, t. Geometry from the root attribute
     ``geometry`` ("WxH") or ``width``/``height``, else inferred as for ``.npy``. Files compressed
     with Prophesee's ECF codec (HDF5 filter 0x8ECF) need the hdf5-ecf plugin on
-    ``HDF5_PLUGIN_PATH``; without it reading raises :class:`DecodeError` naming the codec.
+    ``HDF5_PLUGIN_PATH``, which ships only with Prophesee's own packages (not PyPI, not Debian);
+    without it reading raises :class:`DecodeError` naming the codec. Files compressed with any
+    filter ``hdf5plugin`` provides (Blosc, Blosc2, Zstd, LZ4, Bitshuffle, ...) read.
+
+Not read: CSV, Prophesee DAT, ES (faery writes these).
 
 Bad input raises ``FileNotFoundError`` (missing file), :class:`DecodeError` (a ``ValueError``;
 corrupt or truncated content) or ``ValueError`` (unsupported extension or arguments).
