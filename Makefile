@@ -38,6 +38,8 @@ test: test-rust test-python
 
 bench: setup
 	cargo bench -p evcore
+	# Decoder fuzz run: 1e6 random, truncated and corrupted byte streams per property, both decoders.
+	EVSERVO_FUZZ_CASES=1000000 cargo test --release -p evcore --test io_decode fuzz_
 	$(BIN)/python -m evservo.bench.results criterion target/criterion benches/RESULTS.md
 	$(BIN)/evservo bench --suite latency --out out/bench --results benches/RESULTS.md
 	$(BIN)/evservo bench --suite paper --jobs 2 --out out/bench-paper --results benches/RESULTS.md

@@ -4,6 +4,7 @@ import hashlib
 from pathlib import Path
 
 import h5py
+import hdf5plugin
 import numpy as np
 import pytest
 
@@ -142,7 +143,70 @@ def test_our_hdf5_layout_is_documented_shape(tmp_path):
         g = f["events"]
         assert (g.attrs["width"], g.attrs["height"]) == (320, 240)
         assert {n: g[n].dtype.str for n in "xypt"} == {"x": "<u2", "y": "<u2", "p": "<i2", "t": "<i8"}
-        assert g["t"].compression == "gzip"
+        # Blosc (hdf5plugin's filter 32001) with zstd, as io.H5_COMPRESSION says.
+        assert all(str(hdf5plugin.BLOSC_ID) in g[n]._filters for n in "xypt")
+
+
+def test_hdf5_is_blosc_zstd_compressed_and_smaller_than_raw(tmp_path):
+    ev = io.read_events(sample(EVT3_FILE))
+    path = tmp_path / "rec.h5"
+    io.write_events(path, ev, 1280, 720)
+    with h5py.File(path, "r") as f:
+        for n in "xypt":
+            ds = f["events"][n]
+            plist = ds.id.get_create_plist()
+            filters = {plist.get_filter(i)[0]: plist.get_filter(i)[2] for i in range(plist.get_nfilters())}
+            assert hdf5plugin.BLOSC_ID in filters, filters
+            # Blosc's options: (..., clevel, shuffle, compressor); compressor 5 is zstd.
+            assert filters[hdf5plugin.BLOSC_ID][-1] == 5
+            assert ds.id.get_storage_size() < ds.size * ds.dtype.itemsize
+    raw_bytes = len(ev) * sum(ev.dtype[n].itemsize for n in "xypt")
+    assert path.stat().st_size < 0.3 * raw_bytes
+    np.testing.assert_array_equal(io.read_events(path), ev)
+
+
+def test_h5_compression_setting_is_used_by_every_writer(tmp_path, monkeypatch):
+    ev = synthetic_events()
+    monkeypatch.setattr(io, "H5_COMPRESSION", {"compression": "gzip", "compression_opts": 4})
+    io.write_events(tmp_path / "gzip.h5", ev, 320, 240)
+    monkeypatch.setattr(io, "H5_COMPRESSION", {})
+    io.write_events(tmp_path / "plain.h5", ev, 320, 240)
+    with h5py.File(tmp_path / "gzip.h5", "r") as f, h5py.File(tmp_path / "plain.h5", "r") as g:
+        assert f["events/t"].compression == "gzip"
+        assert g["events/t"].compression is None and not g["events/t"]._filters
+    for name in ("gzip.h5", "plain.h5"):
+        np.testing.assert_array_equal(io.read_events(tmp_path / name), ev)
+    # The simulator's recording writer takes the same setting.
+    from evservo.sim.record import _EventWriter
+
+    monkeypatch.setattr(io, "H5_COMPRESSION", hdf5plugin.Blosc(cname="lz4", clevel=1))
+    with h5py.File(tmp_path / "rec.h5", "w") as f:
+        w = _EventWriter(f, 320, 240)
+        w.append(ev)
+        w.flush()
+        assert str(hdf5plugin.BLOSC_ID) in f["events/t"]._filters
+    np.testing.assert_array_equal(io.read_events(tmp_path / "rec.h5"), ev)
+
+
+@pytest.mark.parametrize(
+    "codec",
+    [
+        hdf5plugin.Blosc(cname="blosclz", clevel=9, shuffle=hdf5plugin.Blosc.SHUFFLE),
+        hdf5plugin.Blosc(cname="lz4hc"),
+        hdf5plugin.Zstd(clevel=3),
+        hdf5plugin.LZ4(),
+        hdf5plugin.Bitshuffle(),
+    ],
+    ids=["blosc-blosclz", "blosc-lz4hc", "zstd", "lz4", "bitshuffle"],
+)
+def test_third_party_plugin_compressed_hdf5_reads(tmp_path, codec):
+    """A Metavision-layout file another tool compressed with an hdf5plugin filter."""
+    ev = synthetic_events()
+    path = tmp_path / "third_party.hdf5"
+    with h5py.File(path, "w") as f:
+        f.attrs["geometry"] = "320x240"
+        f.create_group("CD").create_dataset("events", data=ev, chunks=(1024,), **codec)
+    np.testing.assert_array_equal(io.read_events(path), ev)
 
 
 def test_round_trip_of_a_real_recording(tmp_path):

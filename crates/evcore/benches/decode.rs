@@ -25,7 +25,9 @@ fn timed(iters: u64, mut f: impl FnMut()) -> Duration {
         f();
     }
     match (cpu0, thread_cpu_ns()) {
-        (Some(a), Some(b)) => Duration::from_nanos(b.saturating_sub(a)),
+        // schedstat advances at scheduler ticks, so a sample shorter than a tick can read 0;
+        // such a sample (criterion's first, tiny ones) takes the wall time instead.
+        (Some(a), Some(b)) if b > a => Duration::from_nanos(b - a),
         _ => wall0.elapsed(),
     }
 }

@@ -2,13 +2,19 @@
 //! property tests: no byte input panics, and any chunking decodes like one call.
 //!
 //! The recordings' expected values come from independent decoders (see the samples' README);
-//! the bit-exact SHA3 digests are asserted by tests/test_io.py. `PROPTEST_CASES` sets the
-//! number of property cases (default 256 per property here; raise it for a long run).
+//! the bit-exact SHA3 digests are asserted by tests/test_io.py.
+//!
+//! The `fuzz_` properties feed random, truncated and corrupted byte streams to both decoders and
+//! the file reader: every input must end in events or an error, never a panic or a hang.
+//! `EVSERVO_FUZZ_CASES` sets their case count (default 256 each, for CI); `make bench` runs
+//! `EVSERVO_FUZZ_CASES=1000000 cargo test --release -p evcore --test io_decode fuzz_`.
+//! `PROPTEST_CASES` sets the count of the slower whole-recording property (default 256).
 
 use evcore::io::{Decoder, Evt2Decoder, Evt3Decoder, Format, RawReader};
 use evcore::{Error, EventBatch};
 use proptest::prelude::*;
 use std::path::PathBuf;
+use std::sync::OnceLock;
 
 fn samples_dir() -> PathBuf {
     match std::env::var_os("EVSERVO_SAMPLES") {
@@ -323,44 +329,207 @@ fn decode_chunked(format: Format, bytes: &[u8], cuts: &[usize]) -> (EventBatch, 
     (out, Ok(()))
 }
 
-fn format_strategy() -> impl Strategy<Value = Format> {
-    prop_oneof![Just(Format::Evt2), Just(Format::Evt3)]
+/// Cases per `fuzz_` property: `EVSERVO_FUZZ_CASES`, else a CI-sized default.
+fn fuzz_cases() -> u32 {
+    std::env::var("EVSERVO_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(256)
+}
+
+/// The data words of the three recordings (header stripped) with their formats, read once per
+/// test process; empty when the samples are not installed.
+fn sample_streams() -> &'static [(Format, Vec<u8>)] {
+    static STREAMS: OnceLock<Vec<(Format, Vec<u8>)>> = OnceLock::new();
+    STREAMS.get_or_init(|| {
+        [
+            (EVT3, Format::Evt3),
+            (EVT2_A, Format::Evt2),
+            (EVT2_B, Format::Evt2),
+        ]
+        .into_iter()
+        .filter_map(|(name, format)| Some((format, data_of(&sample(name)?).to_vec())))
+        .collect()
+    })
+}
+
+/// Word size of a format in bytes.
+fn word_bytes(format: Format) -> usize {
+    match format {
+        Format::Evt2 => 4,
+        Format::Evt3 => 2,
+    }
+}
+
+/// EVT 3.0 decoded word by word straight from the format description, as plainly as possible:
+/// the oracle for the optimised decoder. Same conventions: nothing before the first TIME_HIGH,
+/// wraps only on a near-full-period drop, an out-of-sensor event stops with an error.
+fn evt3_reference(bytes: &[u8], width: u32, height: u32) -> (EventBatch, bool) {
+    const PERIOD: i64 = 1 << 24;
+    const GUARD: i64 = (10 << 12) + (1 << 12);
+    let mut out = EventBatch::default();
+    let (mut started, mut loops) = (false, 0i64);
+    let (mut high, mut low, mut y, mut base, mut vp) = (0i64, 0i64, 0u32, 0u32, 0i16);
+    for c in bytes.chunks_exact(2) {
+        let w = u16::from_le_bytes([c[0], c[1]]);
+        let ty = w >> 12;
+        if !started {
+            if ty != 0x8 {
+                continue;
+            }
+            started = true;
+        }
+        let emit = |x: u32, p: i16, out: &mut EventBatch| -> bool {
+            if x >= width || y >= height {
+                return false;
+            }
+            out.x.push(x as u16);
+            out.y.push(y as u16);
+            out.p.push(p);
+            out.t_us.push(high + low);
+            true
+        };
+        match ty {
+            0x0 => y = u32::from(w & 0x7ff),
+            0x2 => {
+                let (x, p) = (u32::from(w & 0x7ff), ((w >> 11) & 1) as i16);
+                if !emit(x, p, &mut out) {
+                    return (out, false);
+                }
+            }
+            0x3 => {
+                base = u32::from(w & 0x7ff);
+                vp = ((w >> 11) & 1) as i16;
+            }
+            0x4 | 0x5 => {
+                let bits = if ty == 0x4 { 12 } else { 8 };
+                // The whole vector is checked before any of its events is output.
+                let mask = u32::from(w) & ((1 << bits) - 1);
+                if mask != 0 && (base + 31 - mask.leading_zeros() >= width || y >= height) {
+                    return (out, false);
+                }
+                for i in 0..bits {
+                    if mask & (1 << i) != 0 {
+                        emit(base + i, vp, &mut out);
+                    }
+                }
+                base = base.saturating_add(bits);
+            }
+            0x6 => low = i64::from(w & 0xfff),
+            0x8 => {
+                let mut new_high = (i64::from(w & 0xfff) << 12) + loops * PERIOD;
+                if high > new_high && high - new_high >= PERIOD - GUARD {
+                    new_high += PERIOD;
+                    loops += 1;
+                }
+                high = new_high;
+            }
+            _ => {}
+        }
+    }
+    (out, true)
+}
+
+/// Random EVT 3.0 words, mostly of the types real streams carry, with fields anywhere in range.
+fn evt3_words() -> impl Strategy<Value = Vec<u8>> {
+    let word = prop_oneof![
+        6 => (0u16..0x1000).prop_map(|v| 0x2000 | v),
+        3 => 0u16..0x1000,
+        2 => (0u16..0x1000).prop_map(|v| 0x4000 | v),
+        1 => (0u16..0x1000).prop_map(|v| 0x5000 | v),
+        1 => (0u16..0x1000).prop_map(|v| 0x3000 | v),
+        1 => (0u16..0x1000).prop_map(|v| 0x6000 | v),
+        1 => (0u16..0x1000).prop_map(|v| 0x8000 | v),
+        1 => any::<u16>(),
+    ];
+    prop::collection::vec(word, 0..3000)
+        .prop_map(|ws| ws.iter().flat_map(|w| w.to_le_bytes()).collect())
+}
+
+#[test]
+fn evt3_sample_matches_the_plain_reference_decoder() {
+    let Some(bytes) = sample(EVT3) else { return };
+    let data = data_of(&bytes);
+    let mut d = Evt3Decoder::with_geometry(1280, 720).unwrap();
+    let mut out = EventBatch::default();
+    d.decode(data, &mut out).unwrap();
+    let (reference, ok) = evt3_reference(data, 1280, 720);
+    assert!(ok);
+    assert_eq!(out, reference);
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(
-        std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(256)
-    ))]
+    #![proptest_config(ProptestConfig {
+        cases: fuzz_cases(),
+        // Shrinking a failure of a million-case run can take longer than the run: report it as found.
+        max_shrink_iters: 256,
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    })]
 
+    /// Random bytes through both decoders, whole and cut in random pieces: the same events and
+    /// the same error either way (a panic fails the test).
     #[test]
-    fn random_bytes_never_panic_and_chunking_is_invisible(
-        format in format_strategy(),
+    fn fuzz_random_bytes_never_panic_and_chunking_is_invisible(
         bytes in prop::collection::vec(any::<u8>(), 0..4096),
         mut cuts in prop::collection::vec(0usize..4096, 0..16),
     ) {
         cuts.sort_unstable();
-        let whole = decode_whole(format, &bytes);
-        prop_assert_eq!(decode_chunked(format, &bytes, &cuts), whole);
+        for format in [Format::Evt2, Format::Evt3] {
+            let whole = decode_whole(format, &bytes);
+            prop_assert_eq!(decode_chunked(format, &bytes, &cuts), whole);
+        }
     }
 
+    /// The optimised EVT 3.0 decoder equals the plain reference on random word streams, on a
+    /// sensor small enough that many of them end in an out-of-sensor error.
     #[test]
-    fn real_files_split_or_truncated_decode_like_one_shot(
-        which in 0usize..3,
-        keep in 0.0f64..=1.0,
-        mut cuts in prop::collection::vec(0usize..3_000_000, 0..12),
+    fn fuzz_evt3_matches_the_plain_reference_decoder(
+        bytes in evt3_words(),
+        (width, height) in (1u32..=2048, 1u32..=2048),
     ) {
-        let (name, format) = [(EVT3, Format::Evt3), (EVT2_A, Format::Evt2), (EVT2_B, Format::Evt2)][which];
-        let Some(bytes) = sample(name) else { return Ok(()) };
-        let data = data_of(&bytes);
-        let data = &data[..(data.len() as f64 * keep) as usize];
-        cuts.sort_unstable();
-        let whole = decode_whole(format, data);
-        prop_assert!(whole.1.is_ok());
-        prop_assert_eq!(decode_chunked(format, data, &cuts), whole);
+        let mut d = Evt3Decoder::with_geometry(width, height).unwrap();
+        let mut out = EventBatch::default();
+        let ok = d.decode(&bytes, &mut out).is_ok();
+        prop_assert_eq!((out, ok), evt3_reference(&bytes, width, height));
     }
 
+    /// Windows of the real recordings, cut at any byte at both ends (so mid-word and without the
+    /// stream's earlier state) and optionally with a few bytes overwritten. Untouched windows
+    /// that start on a word boundary hold valid words and must decode without error.
     #[test]
-    fn reader_survives_any_file(
+    fn fuzz_truncated_and_corrupted_real_streams(
+        which in 0usize..3,
+        start in any::<prop::sample::Index>(),
+        len in 0usize..16_384,
+        flips in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 0..4),
+        mut cuts in prop::collection::vec(0usize..16_384, 0..8),
+    ) {
+        let streams = sample_streams();
+        if streams.is_empty() {
+            return Ok(());
+        }
+        let (format, data) = &streams[which % streams.len()];
+        let start = start.index(data.len());
+        let mut window = data[start..(start + len).min(data.len())].to_vec();
+        if !window.is_empty() {
+            for (at, byte) in &flips {
+                let at = at.index(window.len());
+                window[at] = *byte;
+            }
+        }
+        cuts.sort_unstable();
+        let whole = decode_whole(*format, &window);
+        if flips.is_empty() && start % word_bytes(*format) == 0 {
+            prop_assert!(whole.1.is_ok(), "{:?}", whole.1);
+        }
+        prop_assert_eq!(decode_chunked(*format, &window, &cuts), whole);
+    }
+
+    /// Any header + body through the file reader, read in slices of any size: it ends, and
+    /// every event it returns lies on the sensor.
+    #[test]
+    fn fuzz_reader_survives_any_file(
         header in prop::sample::select(vec![
             &b"% evt 3.0\n% geometry 64x32\n"[..],
             b"% format EVT2;width=64;height=32\n% end\n",
@@ -379,5 +548,31 @@ proptest! {
             prop_assert!(out.x.iter().all(|&x| u32::from(x) < r.width()));
             prop_assert!(out.y.iter().all(|&y| u32::from(y) < r.height()));
         }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(
+        std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(256)
+    ))]
+
+    /// Whole recordings, truncated at any point and cut anywhere, decode like one call and
+    /// without error (a property over the full files, too slow for a million cases).
+    #[test]
+    fn real_files_split_or_truncated_decode_like_one_shot(
+        which in 0usize..3,
+        keep in 0.0f64..=1.0,
+        mut cuts in prop::collection::vec(0usize..3_000_000, 0..12),
+    ) {
+        let streams = sample_streams();
+        if streams.is_empty() {
+            return Ok(());
+        }
+        let (format, data) = &streams[which % streams.len()];
+        let data = &data[..(data.len() as f64 * keep) as usize];
+        cuts.sort_unstable();
+        let whole = decode_whole(*format, data);
+        prop_assert!(whole.1.is_ok());
+        prop_assert_eq!(decode_chunked(*format, data, &cuts), whole);
     }
 }

@@ -13,8 +13,8 @@ and each such interval is split into the fewest equal sub-steps that keep every 
 HDF5 layout (everything a reader needs; :func:`load_recording` reads it back):
 
 ``/events/{x,y,p,t}``
-    the evservo event layout of :mod:`evservo.io` (u16, u16, i16 0/1, i64 µs; gzip, chunked), with
-    ``width`` and ``height`` attributes on ``/events``.
+    the evservo event layout of :mod:`evservo.io` (u16, u16, i16 0/1, i64 µs; chunked, compressed
+    as ``evservo.io.H5_COMPRESSION`` says), with ``width`` and ``height`` attributes on ``/events``.
 ``/gt/t_us`` (N,) i64 and ``/gt/T_c_o`` (N, 4, 4) f64
     object pose in the camera optical frame (metres) at the floor rate, from t = 0 to the end.
 ``/camera``
@@ -38,6 +38,7 @@ import numpy as np
 
 import evservo
 from evservo import _evcore, geometry, trajectories
+from evservo import io as evio
 from evservo.io import EVENT_CD
 from evservo.models import load_object, to_core_mesh
 
@@ -117,14 +118,14 @@ def substep_times(sim: _evcore.SimCamera, pose_at, t_a_us: int, t_b_us: int, max
 
 
 class _EventWriter:
-    """Appends events to ``/events/{x,y,p,t}`` as resizable gzip datasets (the evservo.io layout)."""
+    """Appends events to ``/events/{x,y,p,t}`` as resizable chunked datasets (the evservo.io layout),
+    compressed as :data:`evservo.io.H5_COMPRESSION` says."""
 
     def __init__(self, f: h5py.File, width: int, height: int) -> None:
         g = f.create_group("events")
         g.attrs["width"] = int(width)
         g.attrs["height"] = int(height)
-        # gzip level 1: these files run to gigabytes and higher levels gain little on event columns.
-        opts = dict(shape=(0,), maxshape=(None,), chunks=(_CHUNK_EVENTS,), compression="gzip", compression_opts=1)
+        opts = dict(shape=(0,), maxshape=(None,), chunks=(_CHUNK_EVENTS,), **evio.h5_compression_options())
         self.ds = {n: g.create_dataset(n, dtype=EVENT_CD[n], **opts) for n in EVENT_CD.names}
         self.pending: list[np.ndarray] = []
         self.n_pending = 0

@@ -30,7 +30,7 @@ const TIME_HIGH: u16 = 0x8;
 const PERIOD_US: i64 = 1 << 24;
 /// OpenEB's tolerance: a drop within ten TIME_HIGH steps of a full period is still a wrap.
 const WRAP_GUARD_US: i64 = (10 << 12) + (1 << 12);
-/// Words decoded per block (2048 words): the block's scratch columns stay in L1/L2 cache.
+/// Words decoded per block (2048 words): bounds the capacity reserved ahead of each block.
 const BLOCK_BYTES: usize = 4 * 1024;
 
 /// Decoder state that the hot loop copies into registers.
@@ -45,7 +45,6 @@ struct State {
 }
 
 /// Streaming EVT 3.0 decoder (see the module docs of [`crate::io`] for the shared rules).
-/// Streaming EVT 3.0 decoder (see the module docs of [`crate::io`] for the shared rules).
 pub type Evt3Decoder = Stream<Evt3Words, 2>;
 
 /// The EVT 3.0 half of [`Evt3Decoder`]: sensor bounds, the stateful address/time registers and
@@ -56,8 +55,6 @@ pub struct Evt3Words {
     height: u32,
     /// `None` until the first TIME_HIGH.
     state: Option<State>,
-    /// Per-block output columns, reused across calls; their length is capacity, not content.
-    scratch: EventBatch,
     stats: DecodeStats,
 }
 
@@ -68,7 +65,6 @@ impl Default for Evt3Words {
             width: MAX_SENSOR_SIDE_PX,
             height: MAX_SENSOR_SIDE_PX,
             state: None,
-            scratch: EventBatch::default(),
             stats: DecodeStats::default(),
         }
     }
@@ -120,9 +116,15 @@ impl WordDecoder for Evt3Words {
 }
 
 impl Evt3Words {
-    /// Decodes whole words into the scratch columns, which are sized by the exact number of
-    /// events the block can produce so the loop writes by index, and stay in cache; the events
-    /// are then appended to `out` with one copy per column.
+    /// Decodes a block of whole words straight into the spare capacity of `out`'s columns.
+    ///
+    /// The hot loop is shaped for the real streams, where ADDR_X and ADDR_Y (≈ 80 % of the
+    /// words) interleave unpredictably: those two take one branch-free path that always writes an
+    /// event slot and only advances the count for ADDR_X (so ADDR_Y merely leaves a slot that the
+    /// next event overwrites); the rarer types share a second path. Vector words expand through
+    /// a nibble table: four output slots per 4 mask bits, with the count advanced by the nibble's
+    /// population. Every write stays below `n + 12`, and `n` never exceeds 12 per word, which
+    /// is what the capacity reserved up front covers.
     fn decode_block(
         &mut self,
         state: &mut State,
@@ -130,110 +132,124 @@ impl Evt3Words {
         out: &mut EventBatch,
     ) -> Result<()> {
         let mut s = *state;
-        // VECT words write all 12 slots and keep the set ones, hence the slack.
-        let room = max_events(block) + 12;
-        let scratch = &mut self.scratch;
-        if scratch.len() < room {
-            scratch.x.resize(room, 0);
-            scratch.y.resize(room, 0);
-            scratch.p.resize(room, 0);
-            scratch.t_us.resize(room, 0);
-        }
-        let EventBatch {
-            x: xs,
-            y: ys,
-            p: ps,
-            t_us: ts,
-        } = scratch;
+        let n_words = block.len() / 2;
+        // At most 12 events per word, plus the 12 slots a vector or a lone slot may write past the end.
+        let room = 12 * n_words + 12;
+        out.x.reserve(room);
+        out.y.reserve(room);
+        out.p.reserve(room);
+        out.t_us.reserve(room);
+        let base_len = out.x.len();
+        debug_assert!([out.y.len(), out.p.len(), out.t_us.len()] == [base_len; 3]);
+        // SAFETY (for every raw write below): each column has capacity >= base_len + room, the
+        // loop only writes slots base_len + n + k with k < 12 and n <= 12 * (words so far), and
+        // set_len at the end covers only the n slots that were written.
+        let xs = out.x[base_len..].as_mut_ptr();
+        let ys = out.y[base_len..].as_mut_ptr();
+        let ps = out.p[base_len..].as_mut_ptr();
+        let ts = out.t_us[base_len..].as_mut_ptr();
         let (width, height) = (self.width, self.height);
-        // Common types are counted in registers; the array takes the rare ones.
-        let [mut n_y, mut n_x, mut n_base, mut n_v12, mut n_v8, mut n_low] = [0u64; 6];
+        let [mut n_y, mut n_x] = [0u64; 2];
         let mut rare = [0u64; 16];
         let mut loops = self.stats.time_loops;
         let mut t = s.time_high_us + s.time_low_us;
+        let mut y = s.y;
         let mut n = 0usize;
         let mut res = Ok(());
         for c in block.chunks_exact(2) {
             let w = u16::from_le_bytes([c[0], c[1]]);
-            let ty = w >> 12;
-            if ty == VECT_12 || ty == VECT_8 {
-                let (mask, step) = if ty == VECT_12 {
-                    n_v12 += 1;
-                    (u32::from(w & 0xfff), 12)
-                } else {
-                    n_v8 += 1;
-                    (u32::from(w & 0xff), 8)
-                };
-                if mask != 0 {
-                    let x_last = s.x_base + 31 - mask.leading_zeros();
-                    if x_last >= width || s.y >= height {
-                        res = Err((x_last, s.y));
-                        break;
-                    }
-                    // All 12 slots are written and the set bits kept: a fixed, unrolled
-                    // sequence instead of a loop whose length the branch predictor cannot guess.
-                    ys[n..n + 12].fill(s.y as u16);
-                    ps[n..n + 12].fill(s.vect_p);
-                    ts[n..n + 12].fill(t);
-                    let slots = &mut xs[n..n + 12];
-                    let mut k = 0;
-                    for i in 0..12 {
-                        slots[k] = (s.x_base + i) as u16;
-                        k += ((mask >> i) & 1) as usize;
-                    }
-                    n += k;
-                }
-                // Saturating: a long run of vectors in garbage input must not wrap back
-                // into the sensor.
-                s.x_base = s.x_base.saturating_add(step);
-            } else if ty == ADDR_X {
-                n_x += 1;
-                let x = u32::from(w & 0x7ff);
-                if x >= width || s.y >= height {
-                    res = Err((x, s.y));
+            if w & 0xd000 == 0 {
+                // ADDR_Y (0x0) or ADDR_X (0x2).
+                let is_x = usize::from((w >> 13) & 1);
+                let v = u32::from(w & 0x7ff);
+                n_x += is_x as u64;
+                n_y += 1 - is_x as u64;
+                if (is_x != 0) & ((v >= width) | (y >= height)) {
+                    res = Err((v, y));
                     break;
                 }
-                xs[n] = x as u16;
-                ys[n] = s.y as u16;
-                ps[n] = ((w >> 11) & 1) as i16;
-                ts[n] = t;
-                n += 1;
-            } else if ty == ADDR_Y {
-                n_y += 1;
-                s.y = u32::from(w & 0x7ff);
-            } else if ty == VECT_BASE_X {
-                n_base += 1;
-                s.x_base = u32::from(w & 0x7ff);
-                s.vect_p = ((w >> 11) & 1) as i16;
-            } else if ty == TIME_LOW {
-                n_low += 1;
-                s.time_low_us = i64::from(w & 0xfff);
-                t = s.time_high_us + s.time_low_us;
-            } else {
-                rare[usize::from(ty)] += 1;
-                if ty == TIME_HIGH {
+                unsafe {
+                    *xs.add(n) = v as u16;
+                    *ys.add(n) = y as u16;
+                    *ps.add(n) = ((w >> 11) & 1) as i16;
+                    *ts.add(n) = t;
+                }
+                n += is_x;
+                y = if is_x != 0 { y } else { v };
+                continue;
+            }
+            let ty = w >> 12;
+            rare[usize::from(ty)] += 1;
+            match ty {
+                VECT_12 | VECT_8 => {
+                    let (mask, step) = if ty == VECT_12 {
+                        (u32::from(w & 0xfff), 12)
+                    } else {
+                        (u32::from(w & 0xff), 8)
+                    };
+                    if mask != 0 {
+                        let x_last = s.x_base + 31 - mask.leading_zeros();
+                        if x_last >= width || y >= height {
+                            res = Err((x_last, y));
+                            break;
+                        }
+                        // x_last < width <= 2048, so every slot value below fits in u16.
+                        let base = s.x_base as u16;
+                        unsafe {
+                            for k in 0..12 {
+                                *ys.add(n + k) = y as u16;
+                                *ps.add(n + k) = s.vect_p;
+                                *ts.add(n + k) = t;
+                            }
+                            let mut m = n;
+                            for j in 0..3 {
+                                let nibble = ((mask >> (4 * j)) & 0xf) as usize;
+                                let offsets = NIBBLE_BITS[nibble];
+                                let origin = base.wrapping_add(4 * j as u16);
+                                for k in 0..4 {
+                                    *xs.add(m + k) = origin.wrapping_add(offsets[k]);
+                                }
+                                m += nibble.count_ones() as usize;
+                            }
+                            n = m;
+                        }
+                    }
+                    // Saturating: a long run of vectors in garbage input must not wrap back
+                    // into the sensor.
+                    s.x_base = s.x_base.saturating_add(step);
+                }
+                VECT_BASE_X => {
+                    s.x_base = u32::from(w & 0x7ff);
+                    s.vect_p = ((w >> 11) & 1) as i16;
+                }
+                TIME_LOW => {
+                    s.time_low_us = i64::from(w & 0xfff);
+                    t = s.time_high_us + s.time_low_us;
+                }
+                TIME_HIGH => {
                     let raw = i64::from(w & 0xfff) << 12;
                     s.time_high_us =
                         unwrap_time_base(s.time_high_us, raw, &mut loops, PERIOD_US, WRAP_GUARD_US);
                     t = s.time_high_us + s.time_low_us;
                 }
+                _ => {}
             }
         }
+        // SAFETY: the first n slots of every column past base_len were written above.
+        unsafe {
+            out.x.set_len(base_len + n);
+            out.y.set_len(base_len + n);
+            out.p.set_len(base_len + n);
+            out.t_us.set_len(base_len + n);
+        }
+        s.y = y;
         rare[usize::from(ADDR_Y)] += n_y;
         rare[usize::from(ADDR_X)] += n_x;
-        rare[usize::from(VECT_BASE_X)] += n_base;
-        rare[usize::from(VECT_12)] += n_v12;
-        rare[usize::from(VECT_8)] += n_v8;
-        rare[usize::from(TIME_LOW)] += n_low;
         for (total, k) in self.stats.words_by_type.iter_mut().zip(rare) {
             *total += k;
         }
         self.stats.time_loops = loops;
         *state = s;
-        out.x.extend_from_slice(&xs[..n]);
-        out.y.extend_from_slice(&ys[..n]);
-        out.p.extend_from_slice(&ps[..n]);
-        out.t_us.extend_from_slice(&ts[..n]);
         res.map_err(|(x, y)| {
             let word = self.stats.words() - 1;
             Error::Decode(format!(
@@ -243,18 +259,20 @@ impl Evt3Words {
     }
 }
 
-/// Events a block of whole words can produce: one per ADDR_X, one per set vector bit.
-fn max_events(block: &[u8]) -> usize {
-    block
-        .chunks_exact(2)
-        .map(|c| {
-            let w = u16::from_le_bytes([c[0], c[1]]);
-            let mask = match w >> 12 {
-                VECT_12 => w & 0xfff,
-                VECT_8 => w & 0xff,
-                _ => 0,
-            };
-            usize::from(w >> 12 == ADDR_X) + mask.count_ones() as usize
-        })
-        .sum()
-}
+/// For each 4-bit vector mask, the offsets of its set bits in order, padded with zeros.
+const NIBBLE_BITS: [[u16; 4]; 16] = {
+    let mut table = [[0u16; 4]; 16];
+    let mut v = 0;
+    while v < 16 {
+        let (mut bit, mut k) = (0, 0);
+        while bit < 4 {
+            if v & (1 << bit) != 0 {
+                table[v][k] = bit as u16;
+                k += 1;
+            }
+            bit += 1;
+        }
+        v += 1;
+    }
+    table
+};

@@ -44,6 +44,9 @@ pub struct RawHeader {
     pub height: u32,
     /// Every header line as (first word, rest), in file order, without the `% `.
     pub fields: Vec<(String, String)>,
+    /// Offset added to every decoded timestamp, from `% t0 N` (µs): writers that store times
+    /// relative to the first event (faery) record the original start there. 0 without the line.
+    pub t0_us: i64,
     /// Length of the header in bytes: the binary data starts at this offset.
     pub len_bytes: usize,
 }
@@ -87,11 +90,22 @@ impl RawHeader {
             fields.push((key.to_string(), value.trim().to_string()));
         }
         let (format, width, height) = interpret(&fields)?;
+        let t0_us = match lookup(&fields, "t0") {
+            None => 0,
+            Some(v) => v
+                .parse::<i64>()
+                .ok()
+                .filter(|t| (0..1 << 62).contains(t))
+                .ok_or_else(|| {
+                    Error::Decode(format!("bad RAW header `t0 {v}` (expected 0..2^62 µs)"))
+                })?,
+        };
         Ok(Self {
             format,
             width,
             height,
             fields,
+            t0_us,
             len_bytes,
         })
     }
@@ -230,6 +244,24 @@ mod tests {
         let (h, rest) = parse(b"% evt 2.0\r\n% geometry 640x480\n\x01\x02").unwrap();
         assert_eq!((h.format, h.width, h.height), (Format::Evt2, 640, 480));
         assert_eq!(rest, b"\x01\x02");
+    }
+
+    #[test]
+    fn t0_line_sets_the_time_offset() {
+        let (h, _) = parse(b"% evt 3.0\n% geometry 640x480\n% t0 4006\n% end\n").unwrap();
+        assert_eq!(h.t0_us, 4006);
+        let (h, _) = parse(b"% evt 3.0\n% geometry 640x480\n").unwrap();
+        assert_eq!(h.t0_us, 0);
+        for bad in [
+            &b"% t0 -1\n"[..],
+            b"% t0 12us\n",
+            b"% t0 99999999999999999999\n",
+        ] {
+            let mut text = b"% evt 2.0\n% geometry 640x480\n".to_vec();
+            text.extend_from_slice(bad);
+            let err = parse(&text).unwrap_err();
+            assert!(err.to_string().contains("t0"), "{err}");
+        }
     }
 
     #[test]

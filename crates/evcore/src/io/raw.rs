@@ -13,6 +13,9 @@ const BLOCK_BYTES: usize = 256 * 1024;
 
 /// A RAW event file reader over any byte source.
 ///
+/// Timestamps are the decoder's plus the header's `% t0` offset ([`RawHeader::t0_us`], 0 when
+/// absent), so files written with times relative to their start read back in absolute time.
+///
 /// Events come out in stream order. Errors are sticky: after a decode error or a stream that
 /// ends inside a word, every later read returns that error.
 #[derive(Debug)]
@@ -161,7 +164,16 @@ impl<R: Read> RawReader<R> {
             return Ok(false);
         }
         let n = chunk.len();
-        self.decoder.decode(chunk, &mut self.buf)?;
+        let first_new = self.buf.len();
+        let res = self.decoder.decode(chunk, &mut self.buf);
+        // Events decoded before an error are kept, so they get the offset too.
+        let t0 = self.header.t0_us;
+        if t0 != 0 {
+            for t in &mut self.buf.t_us[first_new..] {
+                *t = t.saturating_add(t0);
+            }
+        }
+        res?;
         self.input.consume(n);
         Ok(true)
     }
