@@ -59,10 +59,12 @@ def rig_yaml(tmp_path, rec, extra: str = "") -> str:
 
 
 def parts(rec_path, rec, **cfg):
-    """A replay source, a tracker at the recording's start pose and a loop config."""
+    """A replay source, a tracker at the recording's start pose and a loop config. The stale limit is
+    loose (1 s) so that a loaded machine starving the tracker thread does not end a test that is about
+    something else; the watchdog tests set their own."""
     source = ReplaySource(rec_path, speed=SPEED)
     tracker = Tracker(rec.camera, rec.object, rec.gt_T[0])
-    options = dict(settle_s=0.1, duration_s=5.0, speed=SPEED, stale_after_s=0.3, rate_hz=250.0)
+    options = dict(settle_s=0.1, duration_s=5.0, speed=SPEED, stale_after_s=1.0, rate_hz=250.0)
     return source, tracker, RealLoopConfig(**{**options, **cfg})
 
 
@@ -100,7 +102,7 @@ def check_summary(s: dict) -> None:
 def test_replay_through_the_kinematic_arm(rec_path, rec, tmp_path, capsys):
     out = tmp_path / "out"
     args = ["servo", "--robot", "sim", "--camera", str(rec_path), "--settle", "0.1", "--duration", "5",
-            "--replay-speed", str(SPEED), "--stale-after", "0.3", "--rate", "250", "--out", str(out)]  # fmt: skip
+            "--replay-speed", str(SPEED), "--stale-after", "1.0", "--rate", "250", "--out", str(out)]  # fmt: skip
     assert main(args) == 0, capsys.readouterr()
     s = json.loads((out / "summary.json").read_text())
     check_summary(s)
@@ -125,7 +127,7 @@ def test_rig_config_object_section_supplies_model_and_poses(rec_path, rec, tmp_p
     cfg = rig_yaml(tmp_path, rec, f"object:\n  model: box\n  init_pose: {pose}\n  desired_pose: {pose}\n")
     out = tmp_path / "out"
     args = ["servo", "--robot", "sim", "--camera", str(rec_path), "--config", cfg, "--settle", "0.1",
-            "--duration", "0.3", "--replay-speed", str(SPEED), "--stale-after", "0.3", "--out", str(out)]  # fmt: skip
+            "--duration", "0.3", "--replay-speed", str(SPEED), "--stale-after", "1.0", "--out", str(out)]  # fmt: skip
     assert main(args) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["completed"] and s["ended"] == "duration" and s["model"] == "box"
@@ -272,7 +274,7 @@ def test_ctrl_c_stops_the_arm_and_the_threads(rec_path, rec):
             r = run_real_loop(arm, source, tracker, cfg, progress=ctrl_c)
         np.testing.assert_array_equal(arm.twist_w(), np.zeros(6))
         assert arm.gate.history[-1].kind == "halt"
-    assert r.interrupted and not r.completed and "interrupted" in r.ended
+    assert r.interrupted and not r.completed and "interrupted" in r.ended, (r.ended, r.watchdog)
     assert not tracker.running and 0.2 < r.servo_s < 1.0
 
 
