@@ -2,6 +2,7 @@
 
 import json
 import math
+from pathlib import Path
 
 from evservo.cli import main
 
@@ -43,7 +44,17 @@ def test_paper_suite_quick_runs_end_to_end_and_every_row_has_numbers(tmp_path):
     results = json.loads((tmp_path / "results.json").read_text())
     assert len(results["episodes"]) == 19
     assert (tmp_path / "fig5_motion.png").stat().st_size > 10_000
-    # A rerun reuses every finished episode.
+    # A rerun reuses every finished episode; refreshing a results file copies what its tables link to.
     before = {p: p.stat().st_mtime for p in tmp_path.glob("episodes/*/summary.json")}
-    assert main(["bench", "--suite", "paper", "--quick", "--out", str(tmp_path)]) == 0
+    md = tmp_path / "benches" / "RESULTS.md"
+    md.parent.mkdir()
+    md.write_text("# Measured figures\n")
+    assert main(["bench", "--suite", "paper", "--quick", "--out", str(tmp_path), "--results", str(md)]) == 0
     assert {p: p.stat().st_mtime for p in tmp_path.glob("episodes/*/summary.json")} == before
+    targets = re.findall(r"\]\(([^)]+)\)", md.read_text())
+    assert sum(t.endswith("summary.json") for t in targets) >= 12 and "paper-run/fig5_motion.png" in targets
+    for t in targets:
+        copied = md.parent / t
+        assert copied.is_file() and copied.resolve().is_relative_to(md.parent.resolve()), t
+        original = tmp_path / Path(t).relative_to("paper-run")
+        assert copied.read_bytes() == original.read_bytes(), t

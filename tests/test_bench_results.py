@@ -38,6 +38,20 @@ def test_embed_report_demotes_headings_and_reroots_links_and_images(tmp_path):
     assert embed_report("[docs](https://x.org/a)", out, results_dir) == "[docs](https://x.org/a)"
 
 
+def test_embed_report_copies_linked_files_beside_the_results(tmp_path):
+    out, results_dir = tmp_path / "out" / "paper", tmp_path / "benches"
+    (out / "episodes" / "k").mkdir(parents=True)
+    (out / "episodes" / "k" / "summary.json").write_text('{"completed": true}')
+    (out / "fig5_motion.png").write_bytes(b"png")
+    md = "![Fig. 5](fig5_motion.png)\n| a | [1](episodes/k/summary.json) | [web](https://x.org) |"
+    text = embed_report(md, out, results_dir, results_dir / "paper-run")
+    assert "![Fig. 5](paper-run/fig5_motion.png)" in text and "[1](paper-run/episodes/k/summary.json)" in text
+    assert "[web](https://x.org)" in text
+    assert (results_dir / "paper-run" / "episodes" / "k" / "summary.json").read_text() == '{"completed": true}'
+    with pytest.raises(FileNotFoundError, match="links to it"):
+        embed_report("[2](episodes/missing/summary.json)", out, results_dir, results_dir / "paper-run")
+
+
 def test_criterion_table_reads_means_and_throughput(tmp_path):
     d = tmp_path / "decode" / "evt3" / "new"
     d.mkdir(parents=True)

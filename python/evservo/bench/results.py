@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -40,18 +41,39 @@ def splice(path: Path, name: str, body: str) -> None:
     path.write_text(text)
 
 
-def embed_report(report_md: str, source_dir: Path, results_dir: Path) -> str:
+def embed_report(report_md: str, source_dir: Path, results_dir: Path, artifacts: Path | None = None) -> str:
     """A suite's report made fit for a results file in ``results_dir``: headings one level down (the
-    results file owns the top levels), relative links re-rooted at the suite's output directory
-    ``source_dir``, and images, which live in that untracked directory, turned into their paths."""
-    root = Path(os.path.relpath(source_dir, results_dir))
+    results file owns the top levels) and local links and images re-rooted.
+
+    The suite writes into an untracked directory (``source_dir``). With ``artifacts`` (a directory
+    beside the results file, e.g. ``benches/paper``), every file the report links to is copied there,
+    keeping its path relative to ``source_dir``, so the committed results stay traceable to each
+    episode's ``summary.json`` and show their plots; without it, links point into ``source_dir``
+    and images become their paths."""
+    home = source_dir if artifacts is None else artifacts
+    root = Path(os.path.relpath(home, results_dir))
+
+    def local(target: str) -> str | None:
+        if re.match(r"[a-z]+:|/|#", target):
+            return None
+        if artifacts is not None:
+            src = source_dir / target
+            if not src.is_file():
+                raise FileNotFoundError(f"{src}: the report links to it, but it does not exist")
+            dst = artifacts / target
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(src, dst)
+        return (root / target).as_posix()
 
     def image(m: re.Match) -> str:
-        return f"(plot: `{root / m[2]}`)"
+        path = local(m[2])
+        if path is None:
+            return m[0]
+        return f"![{m[1]}]({path})" if artifacts is not None else f"(plot: `{path}`)"
 
     def link(m: re.Match) -> str:
-        target = m[2]
-        return m[0] if re.match(r"[a-z]+:|/|#", target) else f"[{m[1]}]({(root / target).as_posix()})"
+        path = local(m[2])
+        return m[0] if path is None else f"[{m[1]}]({path})"
 
     lines = []
     for line in report_md.splitlines():

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 from pathlib import Path
 
 SUITES = ("latency", "paper")
+#: Marks a directory of copied report files as ours to replace on the next run.
+STAMP = "SOURCE.txt"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,7 +38,15 @@ def _refresh(args: argparse.Namespace, section: str, report: Path) -> None:
     from evservo.bench.results import embed_report, splice
 
     results = Path(args.results)
-    splice(results, section, embed_report(report.read_text(), report.parent, results.parent))
+    artifacts = results.parent / f"{section}-run"
+    stamp = artifacts / STAMP
+    if artifacts.exists():
+        if not stamp.is_file():
+            raise FileExistsError(f"{artifacts} exists and was not written by evservo bench: move it away")
+        shutil.rmtree(artifacts)  # the previous run's copies; stale episodes must not linger
+    artifacts.mkdir(parents=True)
+    stamp.write_text(f"Copied by `evservo bench --suite {section} --results {results}` from {report.parent}.\n")
+    splice(results, section, embed_report(report.read_text(), report.parent, results.parent, artifacts))
     print(f"refreshed the {section} section of {args.results}")
 
 
