@@ -104,9 +104,10 @@ def _run_one(cfg: EpisodeConfig, out_dir: str) -> dict:
     return summary
 
 
-def run_all(out: Path, quick: bool, jobs: int) -> list[tuple[str, str, EpisodeConfig, dict]]:
-    """Run (or reuse) every episode; returns (section, key, config, summary) per planned row. A
-    configuration that several sections share runs once."""
+def run_all(out: Path, quick: bool, jobs: int) -> tuple[list[tuple[str, str, EpisodeConfig, dict]], int]:
+    """Run (or reuse) every episode; returns (section, key, config, summary) per planned row and how
+    many episodes were reused from an earlier run. A configuration that several sections share runs
+    once."""
     from tqdm import tqdm
 
     rows = [(section, episode_key(cfg), cfg) for section, cfg in plan(quick)]
@@ -133,7 +134,7 @@ def run_all(out: Path, quick: bool, jobs: int) -> list[tuple[str, str, EpisodeCo
                 for fut in as_completed(futures):
                     summaries[futures[fut]] = fut.result()
                     bar.update()
-    return [(section, key, cfg, summaries[key]) for section, key, cfg in rows]
+    return [(section, key, cfg, summaries[key]) for section, key, cfg in rows], len(summaries) - len(todo)
 
 
 def _fmt(values: list[float]) -> str:
@@ -152,7 +153,9 @@ def _paper(obj: str, z: float, traj: str, tracker: str) -> str:
     return f"{p:.2f}{f' ± {ps:.2f}' if ps else ''} / {r:.2f}{f' ± {rs:.2f}' if rs else ''}"
 
 
-def report(out: Path, episodes: list[tuple[str, str, EpisodeConfig, dict]], quick: bool, wall_s: float) -> str:
+def report(
+    out: Path, episodes: list[tuple[str, str, EpisodeConfig, dict]], quick: bool, wall_s: float, reused: int = 0
+) -> str:
     groups: dict[tuple, list[dict]] = {}
     for section, key, cfg, s in episodes:
         g = (section, cfg.object, cfg.distance_m, cfg.trajectory, cfg.speed_mps, cfg.tracker, cfg.frontend,
@@ -163,7 +166,9 @@ def report(out: Path, episodes: list[tuple[str, str, EpisodeConfig, dict]], quic
         "",
         f"Command: `evservo bench --suite paper{' --quick' if quick else ''} --jobs N --out {out}`; "
         f"evservo {evservo.__version__}, Python {platform.python_version()}, {os.cpu_count()} CPUs, "
-        f"{wall_s / 60:.1f} min, load average {os.getloadavg()[1]:.1f} at the end (the tracker's measured "
+        f"{len({key for _, key, _, _ in episodes}) - reused} episodes run in {wall_s / 60:.1f} min"
+        f"{f' ({reused} reused from an earlier run)' if reused else ''}, "
+        f"load average {os.getloadavg()[1]:.1f} at the end (the tracker's measured "
         "cost is charged to the simulated clock, so a busy machine lowers its rate). "
         "Every figure links to its episode's summary.json. Simulation with ground truth; the paper's numbers "
         "are from its real bench (no ground truth there).",
@@ -263,9 +268,9 @@ def report(out: Path, episodes: list[tuple[str, str, EpisodeConfig, dict]], quic
 def run(out: Path, quick: bool = False, jobs: int = 1) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    episodes = run_all(out, quick, jobs)
+    episodes, reused = run_all(out, quick, jobs)
     wall = time.perf_counter() - t0
-    report(out, episodes, quick, wall)
+    report(out, episodes, quick, wall, reused)
     results = {
         "command": f"evservo bench --suite paper{' --quick' if quick else ''} --jobs {jobs} --out {out}",
         "evservo": evservo.__version__,
