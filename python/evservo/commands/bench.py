@@ -44,9 +44,9 @@ def _refresh(args: argparse.Namespace, section: str, report: Path) -> None:
         if not stamp.is_file():
             raise FileExistsError(f"{artifacts} exists and was not written by evservo bench: move it away")
         shutil.rmtree(artifacts)  # the previous run's copies; stale episodes must not linger
-    artifacts.mkdir(parents=True)
-    stamp.write_text(f"Copied by `evservo bench --suite {section} --results {results}` from {report.parent}.\n")
     splice(results, section, embed_report(report.read_text(), report.parent, results.parent, artifacts))
+    if artifacts.exists():  # only a report that links to files gets a copy directory
+        stamp.write_text(f"Copied by `evservo bench --suite {section} --results {results}` from {report.parent}.\n")
     print(f"refreshed the {section} section of {args.results}")
 
 
