@@ -58,8 +58,13 @@ def test_criterion_table_reads_means_and_throughput(tmp_path):
     (d / "benchmark.json").write_text(json.dumps({"full_id": "decode/evt3", "throughput": {"Elements": 2_000_000}}))
     ci = {"lower_bound": 9.9e6, "upper_bound": 10.1e6}
     (d / "estimates.json").write_text(json.dumps({"mean": {"point_estimate": 10e6, "confidence_interval": ci}}))
+    d = tmp_path / "tracker" / "update" / "new"
+    d.mkdir(parents=True)
+    (d / "benchmark.json").write_text(json.dumps({"full_id": "tracker/update", "throughput": {"Elements": 1}}))
+    (d / "estimates.json").write_text(json.dumps({"mean": {"point_estimate": 500e3, "confidence_interval": ci}}))
     table = criterion_table(tmp_path)
     assert "| `decode/evt3` | 10 ms ± 100 µs | 200.0 M elements/s |" in table
+    assert "| `tracker/update` | 500 µs ± 100 µs | 2000 elements/s |" in table
     md = tmp_path / "R.md"
     assert main(["criterion", str(tmp_path), str(md)]) == 0
     assert "decode/evt3" in md.read_text()

@@ -105,7 +105,9 @@ def criterion_table(root: Path) -> str:
         rate = ""
         throughput = info.get("throughput") or {}
         if "Elements" in throughput:
-            rate = f"{throughput['Elements'] / mean_ns * 1e3:.1f} M elements/s"
+            per_s = throughput["Elements"] / mean_ns * 1e9
+            # Per-update benches count one element per call: a rate in millions would read 0.0.
+            rate = f"{per_s / 1e6:.1f} M elements/s" if per_s >= 1e6 else f"{per_s:.0f} elements/s"
         elif "Bytes" in throughput:
             rate = f"{throughput['Bytes'] / mean_ns * 1e3:.0f} MB/s"
         rows.append(f"| `{info['full_id']}` | {_human_time(mean_ns)} ± {_human_time(half_ns)} | {rate} |")
