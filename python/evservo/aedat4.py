@@ -242,24 +242,22 @@ def iter_blocks(path: str | os.PathLike, info: Aedat4Info | None = None) -> Iter
     def failed(e: BaseException) -> DecodeError:
         return DecodeError(f"{p}: corrupt AEDAT4 data ({type(e).__name__} in the aedat decoder: {e})")
 
-    try:
-        packets = iter(aedat.Decoder(p))
-    except Exception as e:
-        raise failed(e) from e
-    except BaseException as e:
-        if not _is_panic(e):
-            raise
-        raise failed(e) from e
-    index = 0
-    while True:
+    def guarded(call):
+        # The decoder's errors, and its Rust panics (BaseException subclasses), become DecodeError;
+        # KeyboardInterrupt and the like pass through.
         try:
-            packet = next(packets, None)
+            return call()
         except Exception as e:
             raise failed(e) from e
         except BaseException as e:
             if not _is_panic(e):
                 raise
             raise failed(e) from e
+
+    packets = guarded(lambda: iter(aedat.Decoder(p)))
+    index = 0
+    while True:
+        packet = guarded(lambda: next(packets, None))
         if packet is None:
             return
         index += 1
