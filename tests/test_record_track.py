@@ -10,7 +10,7 @@ import pytest
 from conftest import SAMPLES
 from evservo import io
 from evservo.cli import main
-from evservo.commands.track import clamp_time
+from evservo.events import clamp_time
 from evservo.sim.record import load_recording
 
 RAW_SAMPLE = str(SAMPLES / "prophesee_gen41_evt3_1280x720.raw")

@@ -62,7 +62,7 @@ from typing import Any
 
 import numpy as np
 
-from evservo import _evcore, geometry
+from evservo import _evcore, events, geometry
 from evservo.control import CartesianLimits, Pbvs
 from evservo.robots.base import Arm, shift_twist
 from evservo.sim.episode import camera_rotation_rad, pose_errors
@@ -198,15 +198,13 @@ class _CameraPump(threading.Thread):
         self._t_max: int | None = None
 
     def run(self) -> None:
-        from evservo.commands.track import clamp_time
-
         try:
             for ev in self.source:
                 if self._halt.is_set():
                     return
                 if not len(ev):
                     continue
-                ev, n, self._t_max = clamp_time(ev, self._t_max)
+                ev, n, self._t_max = events.clamp_time(ev, self._t_max)
                 off = self.clock() - int(ev["t"][-1]) * 1e-6 / self.speed
                 self.offset_s = off if self.offset_s is None else min(self.offset_s, off)
                 self.tracker.push(ev)

@@ -78,22 +78,6 @@ def parse_pose(text: str) -> np.ndarray:
     return geometry.pose_from_xyz_quat(*values)
 
 
-def clamp_time(ev: np.ndarray, t_max: int | None) -> tuple[np.ndarray, int, int | None]:
-    """Events with every time raised to the running maximum (module policy); returns (events,
-    how many were changed, new running maximum)."""
-    if len(ev) == 0:
-        return ev, 0, t_max
-    t = ev["t"]
-    running = np.maximum.accumulate(t)
-    if t_max is not None:
-        running = np.maximum(running, t_max)
-    n = int(np.count_nonzero(running != t))
-    if n:
-        ev = ev.copy()
-        ev["t"] = running
-    return ev, n, int(running[-1])
-
-
 def _gt_at(gt_t: np.ndarray, gt_T: np.ndarray, t_us: np.ndarray) -> np.ndarray:
     """Ground truth interpolated to ``t_us`` (linear translation, slerp rotation), held at the ends."""
     from scipy.spatial.transform import Rotation, Slerp
@@ -114,7 +98,7 @@ def track_file(
     """Track one recording with one solver and write the outputs to ``out``; returns the summary."""
     from tqdm import tqdm
 
-    from evservo import _evcore, io
+    from evservo import _evcore, events, io
     from evservo.geometry import rotation_error_rad, translation_error_m
     from evservo.sim.record import is_recording, load_recording
     from evservo.tracking import Tracker
@@ -156,7 +140,7 @@ def track_file(
     for k, ev in enumerate(io.open_events(path, delta_t_us=batch_us)):
         if end - batch_us > t_last:
             break
-        ev, n, t_max = clamp_time(ev, t_max)
+        ev, n, t_max = events.clamp_time(ev, t_max)
         n_clamped += n
         started = time.perf_counter()
         est = trk.update(ev)
