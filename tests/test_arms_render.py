@@ -8,7 +8,7 @@ import pytest
 from scipy.ndimage import binary_dilation
 
 from evservo import _evcore, cli
-from evservo.sim.arms import ArmMeshes, interpolate_poses
+from evservo.sim.arms import ArmMeshes
 from evservo.sim.episode import EpisodeConfig, run_episode, summarize
 from evservo.sim.scene import DualArmScene
 from evservo.sim.sources import RenderedSource
@@ -122,8 +122,8 @@ def test_pose_interpolation_matches_the_ends_and_stays_rigid():
 
     A = np.stack([geometry.pose(rng.normal(size=3), rng.normal(size=3)) for _ in range(5)])
     B = np.stack([geometry.pose(rng.normal(size=3), 0.3 * rng.normal(size=3)) @ a for a in A])
-    assert np.allclose(interpolate_poses(A, B, 0.0), A) and np.allclose(interpolate_poses(A, B, 1.0), B)
-    M = interpolate_poses(A, B, 0.5)
+    assert np.allclose(geometry.interpolate(A, B, 0.0), A) and np.allclose(geometry.interpolate(A, B, 1.0), B)
+    M = geometry.interpolate(A, B, 0.5)
     R = M[:, :3, :3]
     assert np.allclose(R @ R.transpose(0, 2, 1), np.eye(3), atol=1e-9)
     # Halfway in rotation: the same angle to either end.

@@ -56,11 +56,13 @@ def inv(T: np.ndarray) -> np.ndarray:
 
 def interpolate(T_a: np.ndarray, T_b: np.ndarray, s: float) -> np.ndarray:
     """The pose a fraction ``s`` of the way from ``T_a`` to ``T_b``: translation linear, rotation along the
-    geodesic (slerp)."""
-    R = Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).as_rotvec()
-    T = np.eye(4)
-    T[:3, :3] = T_a[:3, :3] @ Rotation.from_rotvec(s * R).as_matrix()
-    T[:3, 3] = (1.0 - s) * T_a[:3, 3] + s * T_b[:3, 3]
+    geodesic (slerp). ``T_a``, ``T_b``: 4×4 poses, or (N, 4, 4) stacks interpolated pose by pose."""
+    R_a = T_a[..., :3, :3]
+    d = Rotation.from_matrix(np.swapaxes(R_a, -1, -2) @ T_b[..., :3, :3]).as_rotvec()
+    T = np.zeros(np.broadcast_shapes(np.shape(T_a), np.shape(T_b)))
+    T[..., :3, :3] = R_a @ Rotation.from_rotvec(s * d).as_matrix()
+    T[..., :3, 3] = (1.0 - s) * T_a[..., :3, 3] + s * T_b[..., :3, 3]
+    T[..., 3, 3] = 1.0
     return T
 
 

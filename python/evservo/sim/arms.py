@@ -134,33 +134,3 @@ class ArmMeshes:
         """Each link's pose in the camera frame now, (N, 4, 4); ``T_w_c`` defaults to the scene's camera."""
         T_w_c = self.scene.T_w_c() if T_w_c is None else T_w_c
         return geometry.inv(T_w_c)[None] @ self.world_poses()
-
-
-def interpolate_poses(A: np.ndarray, B: np.ndarray, s: float) -> np.ndarray:
-    """Per-pose interpolation of two (N, 4, 4) stacks at ``s`` in [0, 1]: translation linear,
-    rotation along the geodesic (``A_R · exp(s · log(A_Rᵀ B_R))``), vectorised."""
-    R = np.einsum("nji,njk->nik", A[:, :3, :3], B[:, :3, :3])  # A_Rᵀ B_R
-    cos = np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    theta = np.arccos(cos)
-    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
-    sin = np.sin(theta)
-    small = sin < 1e-9
-    axis = w / np.where(small, 1.0, 2.0 * sin)[:, None]
-    # Near 0 the rotation is (almost) identity: the linear term suffices. (Near π the arms never
-    # turn within one render step.)
-    rotvec = np.where(small[:, None], 0.5 * w, axis * theta[:, None]) * s
-    out = A.copy()
-    out[:, :3, :3] = A[:, :3, :3] @ _rodrigues(rotvec)
-    out[:, :3, 3] = (1.0 - s) * A[:, :3, 3] + s * B[:, :3, 3]
-    return out
-
-
-def _rodrigues(rotvec: np.ndarray) -> np.ndarray:
-    """(N, 3) rotation vectors → (N, 3, 3) matrices."""
-    theta = np.linalg.norm(rotvec, axis=1)
-    k = rotvec / np.where(theta > 0, theta, 1.0)[:, None]
-    K = np.zeros((len(rotvec), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    K = K - K.transpose(0, 2, 1)
-    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
-    return np.eye(3)[None] + s * K + (1 - c) * (K @ K)

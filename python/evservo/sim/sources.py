@@ -54,13 +54,6 @@ def edge_source(camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, t0_us: int
     )
 
 
-def interpolate_poses(A: np.ndarray, B: np.ndarray, s: float) -> np.ndarray:
-    """See :func:`evservo.sim.arms.interpolate_poses`."""
-    from evservo.sim.arms import interpolate_poses as interp
-
-    return interp(A, B, s)
-
-
 class RenderedSource:
     """The rendered event camera (:class:`evservo._evcore.SimCamera`: textured object and a textured
     background plane, the lens's distortion, the ESIM-style sensor model with the ``imx636`` noise
@@ -131,7 +124,7 @@ class RenderedSource:
         batches = []
         for s in np.linspace(0.0, 1.0, n + 1)[1:]:
             t = t0 + round(s * (t1 - t0))
-            occ_s = None if occ is None else interpolate_poses(self.occ, occ, s)
+            occ_s = None if occ is None else geometry.interpolate(self.occ, occ, s)
             batches.append(
                 self.sim.advance(
                     geometry.interpolate(self.T_c_o, T_c_o, s),
