@@ -482,9 +482,9 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
     n = len(r.t_s)
     gt_pos = gt_rot = None
     if gt is not None and n:
-        from evservo.commands.track import _gt_at
+        from evservo.sim.record import gt_at
 
-        k_pos, k_rot = pose_errors(r.T_c_o_est, _gt_at(gt[0], gt[1], r.est_t_us))
+        k_pos, k_rot = pose_errors(r.T_c_o_est, gt_at(gt[0], gt[1], r.est_t_us))
         gt_pos, gt_rot = _rms(k_pos) * 1e3, float(np.rad2deg(_rms(k_rot)))
     s_pos, s_rot = pose_errors(r.T_c_o_est, np.broadcast_to(r.T_c_o_des, (n, 4, 4)))
     cam_rot = camera_rotation_rad(r.T_w_c)

@@ -78,18 +78,6 @@ def parse_pose(text: str) -> np.ndarray:
     return geometry.pose_from_xyz_quat(*values)
 
 
-def _gt_at(gt_t: np.ndarray, gt_T: np.ndarray, t_us: np.ndarray) -> np.ndarray:
-    """Ground truth interpolated to ``t_us`` (linear translation, slerp rotation), held at the ends."""
-    from scipy.spatial.transform import Rotation, Slerp
-
-    t = np.clip(t_us, gt_t[0], gt_t[-1]).astype(float)
-    out = np.tile(np.eye(4), (len(t), 1, 1))
-    out[:, :3, :3] = Slerp(gt_t.astype(float), Rotation.from_matrix(gt_T[:, :3, :3]))(t).as_matrix()
-    for i in range(3):
-        out[:, i, 3] = np.interp(t, gt_t, gt_T[:, i, 3])
-    return out
-
-
 def track_file(
     path: str | Path, solver: str, out: Path, *, model: str | None = None, init_pose: np.ndarray | None = None,
     camera=None, frontend: str = "scarf", batch_us: int = 1000, max_seconds: float | None = None,
@@ -100,7 +88,7 @@ def track_file(
 
     from evservo import _evcore, events, io
     from evservo.geometry import rotation_error_rad, translation_error_m
-    from evservo.sim.record import is_recording, load_recording
+    from evservo.sim.record import gt_at, is_recording, load_recording
     from evservo.tracking import Tracker
 
     path = Path(path)
@@ -164,7 +152,7 @@ def track_file(
     )  # fmt: skip
     err_mm = err_deg = None
     if rec is not None:
-        T_gt = _gt_at(rec.gt_t_us, rec.gt_T, ts)
+        T_gt = gt_at(rec.gt_t_us, rec.gt_T, ts)
         err_mm = np.array([translation_error_m(a, b) for a, b in zip(T_est, T_gt, strict=True)]) * 1e3
         err_deg = np.rad2deg([rotation_error_rad(a, b) for a, b in zip(T_est, T_gt, strict=True)])
         summary.update(

@@ -227,6 +227,19 @@ class Recording:
     attrs: dict
 
 
+def gt_at(gt_t_us: np.ndarray, gt_T: np.ndarray, t_us: np.ndarray) -> np.ndarray:
+    """A recording's ground truth ``gt_T`` (N, 4, 4) at ``gt_t_us`` (µs) interpolated to ``t_us``
+    (linear translation, slerp rotation), held at the ends; (len(t_us), 4, 4)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    t = np.clip(t_us, gt_t_us[0], gt_t_us[-1]).astype(float)
+    out = np.tile(np.eye(4), (len(t), 1, 1))
+    out[:, :3, :3] = Slerp(gt_t_us.astype(float), Rotation.from_matrix(gt_T[:, :3, :3]))(t).as_matrix()
+    for i in range(3):
+        out[:, i, 3] = np.interp(t, gt_t_us, gt_T[:, i, 3])
+    return out
+
+
 def is_recording(path: str | Path) -> bool:
     """True for an HDF5 file written by :func:`record`."""
     p = Path(path)
