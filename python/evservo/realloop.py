@@ -65,7 +65,7 @@ import numpy as np
 from evservo import _evcore, events, geometry
 from evservo.control import CartesianLimits, Pbvs
 from evservo.robots.base import Arm, shift_twist
-from evservo.sim.episode import camera_rotation_rad, pose_errors
+from evservo.sim.episode import camera_rotation_rad, pose_errors, rms
 
 __all__ = ["RealLoopConfig", "RealLoopResult", "TrackingError", "run_real_loop", "summarize", "write_outputs"]
 
@@ -470,10 +470,6 @@ def _gate_summary(gate: Any) -> dict[str, Any]:
     }
 
 
-def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
-
-
 def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """Metrics of a run (JSON-ready); keys as in :func:`evservo.sim.episode.summarize` where the
     concept is the same. ``gt``: ground truth of a replayed simulated recording, ``(t_us (N,),
@@ -485,7 +481,7 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
         from evservo.sim.record import gt_at
 
         k_pos, k_rot = pose_errors(r.T_c_o_est, gt_at(gt[0], gt[1], r.est_t_us))
-        gt_pos, gt_rot = _rms(k_pos) * 1e3, float(np.rad2deg(_rms(k_rot)))
+        gt_pos, gt_rot = rms(k_pos) * 1e3, float(np.rad2deg(rms(k_rot)))
     s_pos, s_rot = pose_errors(r.T_c_o_est, np.broadcast_to(r.T_c_o_des, (n, 4, 4)))
     cam_rot = camera_rotation_rad(r.T_w_c)
     d_cam = r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3] if n else np.zeros((0, 3))
@@ -498,8 +494,8 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
         "interrupted": r.interrupted,
         "dry_run": r.config.dry_run,
         "servo_s": r.servo_s,
-        "servo_pos_rms_mm": _rms(s_pos) * 1e3,
-        "servo_rot_rms_deg": float(np.rad2deg(_rms(s_rot))),
+        "servo_pos_rms_mm": rms(s_pos) * 1e3,
+        "servo_rot_rms_deg": float(np.rad2deg(rms(s_rot))),
         "servo_pos_max_mm": float(np.max(s_pos) * 1e3) if n else float("nan"),
         "gt_track_pos_rms_mm": gt_pos,
         "gt_track_rot_rms_deg": gt_rot,

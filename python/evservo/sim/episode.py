@@ -460,7 +460,8 @@ def estimate_lag_s(t_s: np.ndarray, d_lead: np.ndarray, d_follow: np.ndarray, ma
     return float((lags[i] + shift) * dt)
 
 
-def _rms(x: np.ndarray) -> float:
+def rms(x: np.ndarray) -> float:
+    """Root mean square of ``x``; NaN when empty."""
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
 
 
@@ -487,12 +488,12 @@ def summarize(result: EpisodeResult) -> dict:
         "ended": r.ended,
         "lost_at_s": r.lost_at_s,
         "simulated_s": sim_s,
-        "servo_pos_rms_mm": _rms(s_pos) * 1e3,
-        "servo_rot_rms_deg": float(np.rad2deg(_rms(s_rot))),
-        "gt_servo_pos_rms_mm": _rms(g_pos) * 1e3,
-        "gt_servo_rot_rms_deg": float(np.rad2deg(_rms(g_rot))),
-        "gt_track_pos_rms_mm": _rms(k_pos) * 1e3,
-        "gt_track_rot_rms_deg": float(np.rad2deg(_rms(k_rot))),
+        "servo_pos_rms_mm": rms(s_pos) * 1e3,
+        "servo_rot_rms_deg": float(np.rad2deg(rms(s_rot))),
+        "gt_servo_pos_rms_mm": rms(g_pos) * 1e3,
+        "gt_servo_rot_rms_deg": float(np.rad2deg(rms(g_rot))),
+        "gt_track_pos_rms_mm": rms(k_pos) * 1e3,
+        "gt_track_rot_rms_deg": float(np.rad2deg(rms(k_rot))),
         "lag_s": estimate_lag_s(r.t_s, d_obj, d_cam) if n > 100 else float("nan"),
         "camera_rot_mean_deg": float(np.rad2deg(np.mean(cam_rot))) if n else float("nan"),
         "object_travel_max_m": float(np.max(np.linalg.norm(d_obj, axis=1))) if n else 0.0,
