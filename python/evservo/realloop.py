@@ -64,12 +64,16 @@ import numpy as np
 
 from evservo import _evcore, events, geometry
 from evservo.control import CartesianLimits, Pbvs
+from evservo.outputs import prepare_out_dir, write_text_atomic
 from evservo.robots.base import Arm, shift_twist
 from evservo.sim.episode import camera_rotation_rad, pose_errors, rms
 
 __all__ = ["RealLoopConfig", "RealLoopResult", "TrackingError", "run_real_loop", "summarize", "write_outputs"]
 
 log = logging.getLogger(__name__)
+
+#: The files :func:`write_outputs` writes into the run's directory.
+OUTPUTS = ("summary.json", "log.csv", "motion.png")
 
 
 class TrackingError(RuntimeError):
@@ -535,11 +539,9 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
     through (m/s, deg/s), that twist's components in the robot base frame (in a dry run: what would
     have been sent — check its directions before the first real run), cycle time and lateness (ms),
     the controller's state."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_out_dir(out_dir, stale=OUTPUTS)
     paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
     summary = summary if summary is not None else summarize(r)
-    paths["summary"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
     n = len(r.t_s)
     every = max(1, round(r.config.rate_hz / r.config.log_rate_hz))
     keep = np.zeros(n, bool)
@@ -568,6 +570,8 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
             ]  # fmt: skip
             w.writerow([f"{v:.6g}" for v in row] + [r.state[i]])
     plot_motion(r, paths["motion"])
+    # Last and atomically: a summary.json is there only when the run's other outputs are.
+    write_text_atomic(paths["summary"], json.dumps(summary, indent=2, default=float) + "\n")
     return paths
 
 

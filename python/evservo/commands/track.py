@@ -15,12 +15,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-SUMMARY_KEYS = ("gt_track_pos_rms_mm", "gt_track_rot_rms_deg", "tracker_rate_hz", "n_events", "lost")
+from evservo.interrupt import StopOnInterrupt
+from evservo.outputs import prepare_out_dir, write_text_atomic
+
+#: The files one tracking run writes into its output directory.
+OUTPUTS = ("summary.json", "poses.csv", "overlay.png", "error.png")
 
 
 def load_camera_file(path: str | Path):
@@ -91,9 +96,7 @@ def track_file(
     from evservo.sim.record import gt_at, is_recording, load_recording
     from evservo.tracking import Tracker
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no such recording: {path}")
+    path = io.require_regular_file(path, "recording")
     meta = io.info(path)
     rec = load_recording(path) if is_recording(path) else None
     cam = camera or (rec.camera if rec else None)
@@ -114,6 +117,8 @@ def track_file(
         raise ValueError(f"{path} holds no events")
     if batch_us < 1:
         raise ValueError(f"--batch-us must be >= 1, got {batch_us}")
+    if max_seconds is not None and not (np.isfinite(max_seconds) and max_seconds > 0):
+        raise ValueError(f"--max-seconds must be a finite number of seconds > 0, got {max_seconds}")
 
     trk = Tracker(cam, obj, init_pose, solver=solver, frontend=frontend)
     t_first, t_last = meta["t_first_us"], meta["t_last_us"]
@@ -125,33 +130,39 @@ def track_file(
     n_clamped, t_max, solve_s = 0, None, 0.0
     end = (t_first // batch_us + 1) * batch_us
     bar = tqdm(total=n_slices, unit="batch", desc=f"{solver:>7}", disable=not progress, leave=False)
-    for k, ev in enumerate(io.open_events(path, delta_t_us=batch_us)):
-        if end - batch_us > t_last:
-            break
-        ev, n, t_max = events.clamp_time(ev, t_max)
-        n_clamped += n
-        started = time.perf_counter()
-        est = trk.update(ev)
-        solve_s += time.perf_counter() - started
-        ts.append(end)
-        Ts.append(est.T_c_o)
-        lost.append(est.lost)
-        counts.append(len(ev))
-        if k in snap_at:
-            field, origin = trk.field()
-            snaps.append((end, field.copy(), origin, trk.projected_points().copy()))
-        end += batch_us
-        bar.update()
+    interrupted = False
+    with StopOnInterrupt() as stop:
+        for k, ev in enumerate(io.open_events(path, delta_t_us=batch_us)):
+            if stop.requested:  # Ctrl-C: keep what was tracked, marked as interrupted
+                interrupted = True
+                break
+            if end - batch_us > t_last:
+                break
+            ev, n, t_max = events.clamp_time(ev, t_max)
+            n_clamped += n
+            started = time.perf_counter()
+            est = trk.update(ev)
+            solve_s += time.perf_counter() - started
+            ts.append(end)
+            Ts.append(est.T_c_o)
+            lost.append(est.lost)
+            counts.append(len(ev))
+            if k in snap_at:
+                field, origin = trk.field()
+                snaps.append((end, field.copy(), origin, trk.projected_points().copy()))
+            end += batch_us
+            bar.update()
     bar.close()
-    ts, T_est, lost = np.array(ts), np.array(Ts), np.array(lost, bool)
+    ts, T_est, lost = np.array(ts), np.array(Ts).reshape(-1, 4, 4), np.array(lost, bool)
     summary = dict(
-        recording=str(path), solver=solver, frontend=frontend, object=str(obj), batch_us=batch_us,
+        recording=str(path), interrupted=interrupted, solver=solver, frontend=frontend, object=str(obj),
+        batch_us=batch_us,
         n_updates=len(ts), n_events=int(np.sum(counts)), n_time_clamped=n_clamped, solve_s=solve_s,
         tracker_rate_hz=len(ts) / solve_s if solve_s > 0 else 0.0, lost=bool(lost[-1]) if len(lost) else False,
         lost_fraction=float(lost.mean()) if len(lost) else 0.0, width=cam.width, height=cam.height,
     )  # fmt: skip
     err_mm = err_deg = None
-    if rec is not None:
+    if rec is not None and len(ts):
         T_gt = gt_at(rec.gt_t_us, rec.gt_T, ts)
         err_mm = np.array([translation_error_m(a, b) for a, b in zip(T_est, T_gt, strict=True)]) * 1e3
         err_deg = np.rad2deg([rotation_error_rad(a, b) for a, b in zip(T_est, T_gt, strict=True)])
@@ -162,11 +173,12 @@ def track_file(
         )  # fmt: skip
     else:
         summary.update(gt_track_pos_rms_mm=None, gt_track_rot_rms_deg=None)
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_out_dir(out, stale=OUTPUTS)
     _write_poses(out / "poses.csv", ts, T_est, lost, err_mm, err_deg)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     _plot_overlay(out / "overlay.png", snaps, solver)
     _plot_error(out / "error.png", ts, err_mm, err_deg, lost, solver)
+    # Last and atomically: a summary.json is there only when the run's other outputs are.
+    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     return summary
 
 
@@ -241,16 +253,20 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"unknown front-end {args.frontend!r}; choose one of {FRONTENDS}")
     camera = load_camera_file(args.camera) if args.camera else None
     init = parse_pose(args.init_pose) if args.init_pose else None
-    out = Path(args.out)
     solvers = SOLVERS if args.compare else (args.solver,)
+    # Checked (and cleared of an earlier run's files) before any tracking starts.
+    outs = {solver: prepare_out_dir(Path(args.out) / solver if args.compare else args.out, stale=OUTPUTS)
+            for solver in solvers}  # fmt: skip
     rows = []
     for solver in solvers:
         s = track_file(
-            args.recording, solver, out / solver if args.compare else out, model=args.model, init_pose=init,
+            args.recording, solver, outs[solver], model=args.model, init_pose=init,
             camera=camera, frontend=args.frontend, batch_us=args.batch_us, max_seconds=args.max_seconds,
             progress=not args.quiet,
         )  # fmt: skip
         rows.append(s)
+        if s["interrupted"]:
+            break
 
     def fmt(v, spec):
         return "n/a" if v is None else format(v, spec)
@@ -263,6 +279,10 @@ def run(args: argparse.Namespace) -> int:
         )
     if any(s["n_time_clamped"] for s in rows):
         print(f"note: {rows[0]['n_time_clamped']} events stepped back in time and were clamped to the newest time")
+    if rows[-1]["interrupted"]:
+        print(f"evservo: interrupted: partial outputs (marked interrupted) in {outs[rows[-1]['solver']]}",
+              file=sys.stderr)  # fmt: skip
+        return 130
     return 0
 
 
