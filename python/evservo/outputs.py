@@ -15,7 +15,7 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-__all__ = ["OutputError", "atomic_path", "check_out_file", "prepare_out_dir", "write_text_atomic"]
+__all__ = ["OutputError", "atomic_path", "check_out_file", "make_out_dir", "prepare_out_dir", "write_text_atomic"]
 
 
 class OutputError(ValueError):
@@ -34,24 +34,30 @@ def _probe_writable(directory: Path, what: str) -> None:
 
 
 def prepare_out_dir(path: str | os.PathLike, stale: Iterable[str] = (), option: str = "--out") -> Path:
-    """Make sure ``path`` is a writable directory (created if missing) and remove the files named in
-    ``stale`` from an earlier run, so that an interrupted run never leaves an old ``summary.json``
-    behind that reads as its own. Raises :class:`OutputError` when ``path`` is an existing file,
-    lies under a file, or is not writable."""
+    """Check that ``path`` can be the output directory and remove the files named in ``stale`` from an
+    earlier run in it, so that an interrupted run never leaves an old ``summary.json`` behind that reads
+    as its own. Raises :class:`OutputError` when ``path`` is an existing file, lies under a file, or
+    the directory that would hold it is not writable. A missing directory is not created here (a run
+    whose inputs turn out bad leaves nothing behind); writers call :func:`make_out_dir`."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise OutputError(f"{option} {p} exists and is not a directory")
-    try:
-        p.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise OutputError(f"{option} {p}: a parent of it is a file, not a directory") from None
-    except OSError as e:
-        raise OutputError(f"{option} {p}: cannot create the directory: {e.strerror or e}") from None
-    _probe_writable(p, option)
+    absolute = p.absolute()
+    existing = next(q for q in (absolute, *absolute.parents) if q.exists())
+    if not existing.is_dir():
+        raise OutputError(f"{option} {p}: {existing} is a file, not a directory")
+    _probe_writable(existing, option)
     for name in stale:
         target = p / name
         if target.is_file() or target.is_symlink():
             target.unlink()
+    return p
+
+
+def make_out_dir(path: str | os.PathLike, stale: Iterable[str] = (), option: str = "--out") -> Path:
+    """:func:`prepare_out_dir`, then create the directory."""
+    p = prepare_out_dir(path, stale, option)
+    p.mkdir(parents=True, exist_ok=True)
     return p
 
 
@@ -60,10 +66,10 @@ def check_out_file(path: str | os.PathLike, suffixes: tuple[str, ...] = (), opti
     path is not a directory, and its directory exists and is writable. The file itself is not
     touched (an existing one is replaced only when the new one is complete)."""
     p = Path(path)
-    if suffixes and p.suffix.lower() not in suffixes:
-        raise OutputError(f"{option} {p}: want a {'/'.join(suffixes)} file name")
     if p.is_dir():
         raise OutputError(f"{option} {p} is a directory; give a file name")
+    if suffixes and p.suffix.lower() not in suffixes:
+        raise OutputError(f"{option} {p}: want a {'/'.join(suffixes)} file name")
     parent = p.parent
     if not parent.is_dir():
         raise OutputError(f"{option} {p}: the directory {parent} does not exist")

@@ -64,7 +64,7 @@ import numpy as np
 
 from evservo import _evcore, events, geometry
 from evservo.control import CartesianLimits, Pbvs
-from evservo.outputs import prepare_out_dir, write_text_atomic
+from evservo.outputs import make_out_dir, write_text_atomic
 from evservo.robots.base import Arm, shift_twist
 from evservo.sim.episode import camera_rotation_rad, pose_errors, rms
 
@@ -539,7 +539,7 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
     through (m/s, deg/s), that twist's components in the robot base frame (in a dry run: what would
     have been sent — check its directions before the first real run), cycle time and lateness (ms),
     the controller's state."""
-    out = prepare_out_dir(out_dir, stale=OUTPUTS)
+    out = make_out_dir(out_dir, stale=OUTPUTS)
     paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
     summary = summary if summary is not None else summarize(r)
     n = len(r.t_s)

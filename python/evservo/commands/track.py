@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from evservo.interrupt import StopOnInterrupt
-from evservo.outputs import prepare_out_dir, write_text_atomic
+from evservo.outputs import make_out_dir, prepare_out_dir, write_text_atomic
 
 #: The files one tracking run writes into its output directory.
 OUTPUTS = ("summary.json", "poses.csv", "overlay.png", "error.png")
@@ -173,7 +173,7 @@ def track_file(
         )  # fmt: skip
     else:
         summary.update(gt_track_pos_rms_mm=None, gt_track_rot_rms_deg=None)
-    out = prepare_out_dir(out, stale=OUTPUTS)
+    out = make_out_dir(out, stale=OUTPUTS)
     _write_poses(out / "poses.csv", ts, T_est, lost, err_mm, err_deg)
     _plot_overlay(out / "overlay.png", snaps, solver)
     _plot_error(out / "error.png", ts, err_mm, err_deg, lost, solver)

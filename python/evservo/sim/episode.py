@@ -44,7 +44,7 @@ import numpy as np
 from evservo import _evcore, geometry, trajectories
 from evservo.control import Pbvs
 from evservo.interrupt import INTERRUPTED, StopOnInterrupt
-from evservo.outputs import prepare_out_dir, write_text_atomic
+from evservo.outputs import make_out_dir, write_text_atomic
 from evservo.robots import PoseFollower, shift_twist
 from evservo.sim.arms import ArmMeshes
 from evservo.sim.scene import DualArmScene
@@ -521,7 +521,7 @@ def summarize(result: EpisodeResult) -> dict:
 def write_outputs(result: EpisodeResult, out_dir: str | Path, summary: dict | None = None) -> dict[str, Path]:
     """Write ``summary.json``, ``log.csv`` (at ``config.log_rate_hz``) and ``motion.png`` into
     ``out_dir``; returns their paths by name."""
-    out = prepare_out_dir(out_dir, stale=OUTPUTS)
+    out = make_out_dir(out_dir, stale=OUTPUTS)
     paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
     summary = summary if summary is not None else summarize(result)
     _write_log(result, paths["log"])
