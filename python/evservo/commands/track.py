@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evservo.inputs import require_regular_file
 from evservo.interrupt import StopOnInterrupt
 from evservo.outputs import make_out_dir, prepare_out_dir, write_text_atomic
 
@@ -67,7 +68,10 @@ def load_camera_file(path: str | Path):
     if len(dist) > 5:
         raise ValueError(f"{p}: at most 5 distortion coefficients (k1 k2 p1 p2 k3), got {len(dist)}")
     dist = tuple(np.pad(dist, (0, 5 - len(dist))))
-    return _evcore.Camera(width, height, float(fx), float(fy), float(cx), float(cy), dist)
+    try:
+        return _evcore.Camera(width, height, float(fx), float(fy), float(cx), float(cy), dist)
+    except ValueError as e:
+        raise ValueError(f"{p}: {e}") from None
 
 
 def parse_pose(text: str) -> np.ndarray:
@@ -96,7 +100,7 @@ def track_file(
     from evservo.sim.record import gt_at, is_recording, load_recording
     from evservo.tracking import Tracker
 
-    path = io.require_regular_file(path, "recording")
+    path = require_regular_file(path, "recording")
     meta = io.info(path)
     rec = load_recording(path) if is_recording(path) else None
     cam = camera or (rec.camera if rec else None)
