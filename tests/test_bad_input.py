@@ -51,7 +51,6 @@ def files(tmp_path):
         (["track", "{d}/loop.h5", "--out", "{d}/o"], "symbolic links"),
         (["servo", "--robot", "sim", "--camera", "{d}/fifo.h5", "--out", "{d}/o"], "not a regular file"),
         (["track", "{rec}", "--init-pose", "0,0,0.001,0,0,0,1", "--out", "{d}/o"], "camera is inside the object"),
-        (["track", "{rec}", "--init-pose", "0,0,0.05,0,0,0,1", "--out", "{d}/o"], "fills the view: it is too close"),
     ],
 )
 def test_bad_input_exits_2_with_one_clear_line(args, message, small_rec, files, capsys):
@@ -61,6 +60,11 @@ def test_bad_input_exits_2_with_one_clear_line(args, message, small_rec, files, 
     assert err.startswith("evservo: error:") and "Traceback" not in err
     assert message in err, err
     assert "no such" not in err
+
+
+def test_an_object_filling_the_view_is_called_too_close(camera):
+    with pytest.raises(ValueError, match="the object fills the view: it is too close"):
+        Tracker(camera, "box", geometry.pose((0, 0, 0.05)))
 
 
 def test_corrupt_bench_summary_is_named(tmp_path, capsys):

@@ -127,6 +127,8 @@ class EpisodeConfig:
                 raise ValueError(f"{name} must be finite, got {v}")
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
+        # The trajectory (a kind or a CSV file) is checked here, before any simulation is set up.
+        trajectories.make_trajectory(self.trajectory, speed_mps=self.speed_mps, rot_rate_dps=self.rot_rate_dps)
         if self.duration_s > MAX_DURATION_S:
             raise ValueError(f"duration must be at most {MAX_DURATION_S:g} s (per-tick record), got {self.duration_s}")
         if not (self.lm_cost_s > 0 and self.search_cost_s > 0 and self.sensing_latency_s >= 0):

@@ -84,6 +84,7 @@ class RecordConfig:
             raise ValueError(f"rotation rate must be finite and >= 0 deg/s, got {self.rot_rate_dps}")
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
+        trajectories.make_trajectory(self.trajectory, speed_mps=self.speed_mps, rot_rate_dps=self.rot_rate_dps)
         if self.duration_s > 3600:
             raise ValueError(f"duration must be at most 3600 s (ground truth is held at 1 kHz), got {self.duration_s}")
         if self.gt_rate_hz < 1000:
