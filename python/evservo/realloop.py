@@ -48,9 +48,7 @@ concept is the same (``completed``, ``ended``, ``servo_pos_rms_mm``, ``servo_rot
 
 from __future__ import annotations
 
-import csv
 import gc
-import json
 import logging
 import sys
 import threading
@@ -64,10 +62,15 @@ import numpy as np
 
 from evservo import _evcore, events, geometry
 from evservo.control import CartesianLimits, Pbvs
+from evservo.geometry import pose_errors, rotation_from_first_rad
 from evservo.robots.base import Arm, shift_twist
-from evservo.sim.episode import camera_rotation_rad, pose_errors, rms
+from evservo.runtime.metrics import rms
+from evservo.runtime.report import plot_motion, write_log, write_summary
+from evservo.runtime.watchdog import WatchdogSpell
 
-__all__ = ["RealLoopConfig", "RealLoopResult", "TrackingError", "run_real_loop", "summarize", "write_outputs"]
+__all__ = [
+    "RealLoopConfig", "RealLoopResult", "TrackingError", "WatchdogSpell", "run_real_loop", "summarize", "write_outputs",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -119,20 +122,6 @@ class RealLoopConfig:
             raise ValueError(f"settle_s must be finite and >= 0, got {self.settle_s}")
         if self.rate_hz > 2000:
             raise ValueError(f"rate_hz above 2000 Hz is beyond any arm's command rate, got {self.rate_hz}")
-
-
-@dataclass(frozen=True)
-class WatchdogSpell:
-    """A watchdog stop, with the sim episode's keys (seconds since servo start): ``last_pose_s`` the
-    time stamp of the last accepted pose, ``start_s`` the first braking cycle, ``zero_s`` the first
-    cycle commanding exactly zero (None if the loop ended before), ``end_s`` None (the real loop
-    does not resume); ``reason`` why it fired."""
-
-    start_s: float
-    last_pose_s: float
-    zero_s: float | None
-    end_s: float | None
-    reason: str
 
 
 @dataclass
@@ -483,7 +472,7 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
         k_pos, k_rot = pose_errors(r.T_c_o_est, gt_at(gt[0], gt[1], r.est_t_us))
         gt_pos, gt_rot = rms(k_pos) * 1e3, float(np.rad2deg(rms(k_rot)))
     s_pos, s_rot = pose_errors(r.T_c_o_est, np.broadcast_to(r.T_c_o_des, (n, 4, 4)))
-    cam_rot = camera_rotation_rad(r.T_w_c)
+    cam_rot = rotation_from_first_rad(r.T_w_c)
     d_cam = r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3] if n else np.zeros((0, 3))
     n_steps = sum(r.tracker_steps.values())
     nominal = r.config.rate_hz * r.servo_s
@@ -538,8 +527,7 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
-    summary = summary if summary is not None else summarize(r)
-    paths["summary"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    write_summary(paths["summary"], summary if summary is not None else summarize(r))
     n = len(r.t_s)
     every = max(1, round(r.config.rate_hz / r.config.log_rate_hz))
     keep = np.zeros(n, bool)
@@ -555,49 +543,14 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
         "sent_vx_mps", "sent_vy_mps", "sent_vz_mps", "sent_wx_dps", "sent_wy_dps", "sent_wz_dps", "cycle_ms",
         "late_ms", "state",
     ]  # fmt: skip
-    with paths["log"].open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        for j, i in enumerate(k):
-            row = [
-                r.t_s[i], *r.T_w_c[i, :3, 3], *r.T_c_o_est[i, :3, 3], s_pos[j] * 1e3, np.rad2deg(s_rot[j]),
-                (r.t_s[i] - r.est_t_s[i]) * 1e3, np.linalg.norm(r.v_cmd_w[i, :3]),
-                np.rad2deg(np.linalg.norm(r.v_cmd_w[i, 3:])), np.linalg.norm(r.v_sent_w[i, :3]),
-                np.rad2deg(np.linalg.norm(r.v_sent_w[i, 3:])), *r.v_sent_w[i, :3], *np.rad2deg(r.v_sent_w[i, 3:]),
-                r.cycle_s[i] * 1e3, r.late_s[i] * 1e3,
-            ]  # fmt: skip
-            w.writerow([f"{v:.6g}" for v in row] + [r.state[i]])
-    plot_motion(r, paths["motion"])
+    cols = np.column_stack([
+        r.t_s[k], r.T_w_c[k, :3, 3], r.T_c_o_est[k, :3, 3], s_pos * 1e3, np.rad2deg(s_rot),
+        (r.t_s[k] - r.est_t_s[k]) * 1e3, np.linalg.norm(r.v_cmd_w[k, :3], axis=1),
+        np.rad2deg(np.linalg.norm(r.v_cmd_w[k, 3:], axis=1)), np.linalg.norm(r.v_sent_w[k, :3], axis=1),
+        np.rad2deg(np.linalg.norm(r.v_sent_w[k, 3:], axis=1)), r.v_sent_w[k, :3], np.rad2deg(r.v_sent_w[k, 3:]),
+        r.cycle_s[k] * 1e3, r.late_s[k] * 1e3,
+    ]) if len(k) else np.zeros((0, len(header) - 1))  # fmt: skip
+    write_log(paths["log"], header, cols, [r.state[i] for i in k])
+    title = f"{r.meta.get('robot', 'arm')}, {r.meta.get('camera', 'camera')}: {r.ended}"
+    plot_motion(paths["motion"], r.t_s, r.T_w_c, r.T_w_c @ r.T_c_o_est, title, spells=r.watchdog)
     return paths
-
-
-def plot_motion(r: RealLoopResult, path: str | Path) -> None:
-    """The paper's Fig. 5 as far as a real run can draw it: camera and object (camera pose · estimate)
-    displacement along each world axis from servo start (mm), the camera's rotation (deg), and the
-    watchdog spells shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = r.t_s
-    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(8, 8), constrained_layout=True)
-    if len(t):
-        d_cam = (r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3]) * 1e3
-        recon = r.T_w_c @ r.T_c_o_est
-        d_obj = (recon[:, :3, 3] - recon[:1, :3, 3]) * 1e3
-        for i, name in enumerate("xyz"):
-            axes[i].plot(t, d_cam[:, i], color="tab:blue", label="camera")
-            axes[i].plot(t, d_obj[:, i], color="tab:orange", ls=":", label="object (camera · estimate)")
-            axes[i].set_ylabel(f"{name} (mm)")
-        axes[3].plot(t, np.rad2deg(camera_rotation_rad(r.T_w_c)), color="tab:blue")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-        for w in r.watchdog:
-            ax.axvspan(w.start_s, w.zero_s if w.zero_s is not None else w.start_s, color="red", alpha=0.2)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[3].set_ylabel("camera rot. (deg)")
-    axes[3].set_xlabel("time since servo start (s)")
-    fig.suptitle(f"{r.meta.get('robot', 'arm')}, {r.meta.get('camera', 'camera')}: {r.ended}", fontsize=10)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -19,7 +19,9 @@ from typing import Any
 import numpy as np
 
 ROBOT_KINDS = ("ur", "franka", "sim")
-DEFAULTS = {"settle": 0.5, "stiffness": 20.0, "rate": 500.0, "stale_after": 0.1, "replay_speed": 1.0}
+#: Options of the real loop that set a :class:`~evservo.realloop.RealLoopConfig` field (its defaults hold).
+CONFIG_OPTIONS = {"settle": "settle_s", "stiffness": "stiffness", "rate": "rate_hz", "stale_after": "stale_after_s",
+                  "replay_speed": "speed"}  # fmt: skip
 
 
 class InputError(ValueError):
@@ -48,20 +50,12 @@ def parse_robot(spec: str) -> RobotSpec:
 
 
 def _pose(text: str, option: str) -> np.ndarray:
-    from evservo.commands.track import parse_pose
+    from evservo.runtime.inputs import parse_object_pose
 
     try:
-        T = parse_pose(text)
+        return parse_object_pose(text, option)
     except ValueError as err:
-        raise InputError(str(err).replace("--init-pose", option)) from None
-    if T[2, 3] <= 0:
-        raise InputError(f"{option}: the object must be in front of the camera (z > 0), got z = {T[2, 3]}")
-    return T
-
-
-def _option(args: argparse.Namespace, name: str) -> Any:
-    v = getattr(args, name)
-    return DEFAULTS[name] if v is None else v
+        raise InputError(str(err)) from None
 
 
 def _open_arm(spec: RobotSpec, rig: Any, dry_run: bool, realtime: str) -> Any:
@@ -99,6 +93,7 @@ def _run_real(args: argparse.Namespace) -> int:
     from evservo import cameras, io
     from evservo.realloop import RealLoopConfig, run_real_loop, summarize, write_outputs
     from evservo.robots.config import load_rig_config
+    from evservo.runtime.inputs import resolve_camera
     from evservo.tracking import Tracker
 
     spec = parse_robot(args.robot)
@@ -109,12 +104,9 @@ def _run_real(args: argparse.Namespace) -> int:
     if spec.kind != "franka" and args.realtime is not None:
         raise InputError("--realtime applies to franka:HOST only")
     rig = load_rig_config(args.config) if args.config else None
-    speed = _option(args, "replay_speed")
-    cfg = RealLoopConfig(
-        rate_hz=_option(args, "rate"), settle_s=_option(args, "settle"), duration_s=args.duration,
-        stiffness=_option(args, "stiffness"), feedforward=args.feedforward, stale_after_s=_option(args, "stale_after"),
-        speed=speed, dry_run=args.dry_run,
-    )  # fmt: skip
+    given = {field: getattr(args, opt) for opt, field in CONFIG_OPTIONS.items() if getattr(args, opt) is not None}
+    cfg = RealLoopConfig(duration_s=args.duration, feedforward=args.feedforward, dry_run=args.dry_run, **given)
+    speed = cfg.speed
     init = _pose(args.init_pose, "--init-pose") if args.init_pose else None
     desired = _pose(args.desired_pose, "--desired-pose") if args.desired_pose else None
 
@@ -123,20 +115,18 @@ def _run_real(args: argparse.Namespace) -> int:
     rec = None if live else (_recording(Path(args.camera)) if Path(args.camera).is_file() else None)
     source = cameras.open_source(args.camera, speed=speed)
     try:
-        camera = rig.camera if rig else (rec.camera if rec else None)
-        if camera is None and not live and (source.width, source.height) == (1280, 720):
-            from evservo import _evcore
-
-            camera = _evcore.Camera.imx636()  # as `evservo track` assumes for a 1280x720 file
-            print(f"note: no --config: taking the paper's IMX636 intrinsics for {args.camera}")
-        if camera is None:
+        if live and rig is None:
             raise InputError(f"{args.camera} carries no camera intrinsics: give --config RIG.yaml")
-        if (camera.width, camera.height) != (source.width, source.height):
-            where = f"rig config {rig.path}" if rig else "the recording"
-            raise InputError(
-                f"the camera in {where} is {camera.width}x{camera.height} but {args.camera} is "
-                f"{source.width}x{source.height}"
-            )
+        notes: list[str] = []
+        try:
+            camera = resolve_camera(
+                args.camera, (source.width, source.height), rig.camera if rig else None,
+                rec.camera if rec else None, "give --config RIG.yaml", notes,
+            )  # fmt: skip
+        except ValueError as err:
+            raise InputError(f"{err}" + (f" (rig config {rig.path})" if rig else "")) from None
+        for line in notes:
+            print(f"note: {line}")
         model = args.model or (rig.model if rig else None) or (rec.object if rec else None)
         if model is None:
             raise InputError("give --model (a built-in name or a mesh path) or object.model in the rig config")

@@ -31,8 +31,6 @@ Frames: w world, c camera optical frame, o object; ``T_a_b`` is b in a (4×4, me
 
 from __future__ import annotations
 
-import csv
-import json
 import time
 from collections import deque
 from collections.abc import Callable
@@ -43,7 +41,11 @@ import numpy as np
 
 from evservo import _evcore, geometry, trajectories
 from evservo.control import Pbvs
+from evservo.geometry import pose_errors, rotation_from_first_rad
 from evservo.robots import PoseFollower, shift_twist
+from evservo.runtime.metrics import estimate_lag_s, rms
+from evservo.runtime.report import plot_motion, write_log, write_summary
+from evservo.runtime.watchdog import WatchdogSpell, spells_from_flags
 from evservo.sim.arms import ArmMeshes
 from evservo.sim.scene import DualArmScene
 from evservo.sim.sources import EVENT_SOURCES, EventSource, make_event_source
@@ -127,20 +129,6 @@ class EpisodeConfig:
             raise ValueError("dropout_s must be (start, end) with start < end")
 
 
-@dataclass(frozen=True)
-class WatchdogEvent:
-    """One spell of the controller's watchdog (no fresh pose for ``stale_after_s``), in seconds.
-
-    ``last_pose_s``: time stamp of the last pose accepted before it; ``start_s``: first control cycle
-    that braked; ``zero_s``: first tick the commanded camera twist was exactly zero (None if never);
-    ``end_s``: first cycle servoing again (None if it lasted to the end)."""
-
-    start_s: float
-    last_pose_s: float
-    zero_s: float | None
-    end_s: float | None
-
-
 @dataclass
 class EpisodeResult:
     """Per-tick record of an episode (index k is simulated time ``t_s[k]``, 1 kHz) and its outcome.
@@ -169,7 +157,7 @@ class EpisodeResult:
     busy_s: float
     wall_s: float
     events: int
-    watchdog_events: list[WatchdogEvent] = field(default_factory=list)
+    watchdog_events: list[WatchdogSpell] = field(default_factory=list)
 
     @property
     def T_c_o_true(self) -> np.ndarray:
@@ -189,8 +177,7 @@ class ClockedTracker:
         ``cpu_s`` of this thread's CPU time (ingest included)."""
         self.tracker = tracker
         self.cost = cost
-        # One cycle is 1 LM + 4 search steps (edft+) or 5 steps of a single solver (n_search = 4).
-        self.cycle_len = 5
+        self.cycle_len = tracker.cycle_len
         self.free_us = 0  # when the solver can start its next step
         self._queue: deque[tuple[int, np.ndarray]] = deque()
         self._pending: deque[tuple[int, _evcore.Estimate]] = deque()
@@ -396,73 +383,8 @@ def run_episode(
         wall_s=time.perf_counter() - wall0,
         events=n_events,
     )
-    result.watchdog_events = watchdog_events(result)
+    result.watchdog_events = spells_from_flags(result.t_s, result.watchdog, result.est_t_s, result.v_cmd_w)
     return result
-
-
-def watchdog_events(result: EpisodeResult) -> list[WatchdogEvent]:
-    """The watchdog's spells from the per-tick record."""
-    w, t = result.watchdog, result.t_s
-    out = []
-    starts = np.flatnonzero(w & ~np.concatenate([[False], w[:-1]]))
-    for s in starts:
-        after = np.flatnonzero(~w[s:])
-        e = s + after[0] if len(after) else None
-        span = slice(s, e)
-        zero = np.flatnonzero(~np.any(result.v_cmd_w[span], axis=1))
-        out.append(
-            WatchdogEvent(
-                start_s=float(t[s]),
-                last_pose_s=float(result.est_t_s[s]),
-                zero_s=float(t[s + zero[0]]) if len(zero) else None,
-                end_s=float(t[e]) if e is not None else None,
-            )
-        )
-    return out
-
-
-def pose_errors(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Translation distance (m) and geodesic angle (rad) between pose stacks ``A`` and ``B`` (N, 4, 4)."""
-    pos = np.linalg.norm(A[:, :3, 3] - B[:, :3, 3], axis=1)
-    tr = np.einsum("nji,nji->n", A[:, :3, :3], B[:, :3, :3])  # trace(Aᵀ B)
-    return pos, np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
-
-
-def camera_rotation_rad(T_w_c: np.ndarray) -> np.ndarray:
-    """Geodesic angle (rad) of each camera orientation in ``T_w_c`` (N, 4, 4) from the first one."""
-    if not len(T_w_c):
-        return np.zeros(0)
-    tr = np.einsum("ji,nji->n", T_w_c[0, :3, :3], T_w_c[:, :3, :3])
-    return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
-
-
-def estimate_lag_s(t_s: np.ndarray, d_lead: np.ndarray, d_follow: np.ndarray, max_lag_s: float = 1.0) -> float:
-    """How far ``d_follow`` (N, 3) trails ``d_lead`` (N, 3), both sampled at uniform times ``t_s``:
-    the shift maximising their normalised cross-correlation (summed over the axes, means removed),
-    searched in ``[−max_lag_s/2, max_lag_s]`` and refined by a parabola through the peak. NaN if
-    either signal is flat."""
-    dt = float(t_s[1] - t_s[0])
-    a = d_lead - d_lead.mean(axis=0)
-    b = d_follow - d_follow.mean(axis=0)
-    if np.sum(a * a) < 1e-12 or np.sum(b * b) < 1e-12:
-        return float("nan")
-    max_k = min(round(max_lag_s / dt), len(a) // 2)
-    lags = np.arange(-max_k // 2, max_k + 1)
-    c = np.empty(len(lags))
-    for i, L in enumerate(lags):
-        x, y = (a[: len(a) - L], b[L:]) if L >= 0 else (a[-L:], b[: len(b) + L])
-        c[i] = np.sum(x * y) / np.sqrt(np.sum(x * x) * np.sum(y * y))
-    i = int(np.argmax(c))
-    shift = 0.0
-    if 0 < i < len(c) - 1:
-        den = c[i - 1] - 2 * c[i] + c[i + 1]
-        shift = 0.5 * (c[i - 1] - c[i + 1]) / den if den < 0 else 0.0
-    return float((lags[i] + shift) * dt)
-
-
-def rms(x: np.ndarray) -> float:
-    """Root mean square of ``x``; NaN when empty."""
-    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
 
 
 def summarize(result: EpisodeResult) -> dict:
@@ -478,7 +400,7 @@ def summarize(result: EpisodeResult) -> dict:
     # The truth at each estimate's own time stamp (nearest tick).
     idx = np.clip(np.round(r.est_t_s / (TICK_US * 1e-6)).astype(int), 0, max(n - 1, 0))
     k_pos, k_rot = pose_errors(r.T_c_o_est, truth[idx])
-    cam_rot = camera_rotation_rad(r.T_w_c)
+    cam_rot = rotation_from_first_rad(r.T_w_c)
     d_obj = r.T_w_o[:, :3, 3] - r.T_w_o[:1, :3, 3]
     d_cam = r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3]
     sim_s = n * TICK_US * 1e-6
@@ -510,86 +432,36 @@ def summarize(result: EpisodeResult) -> dict:
 
 
 def write_outputs(result: EpisodeResult, out_dir: str | Path, summary: dict | None = None) -> dict[str, Path]:
-    """Write ``summary.json``, ``log.csv`` (at ``config.log_rate_hz``) and ``motion.png`` into
-    ``out_dir``; returns their paths by name."""
+    """Write ``summary.json``, ``log.csv`` (at ``config.log_rate_hz``) and ``motion.png`` (the paper's
+    Fig. 5) into ``out_dir``; returns their paths by name."""
+    r, cfg = result, result.config
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
-    summary = summary if summary is not None else summarize(result)
-    paths["summary"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
-    _write_log(result, paths["log"])
-    plot_motion(result, paths["motion"])
-    return paths
-
-
-def _write_log(r: EpisodeResult, path: Path) -> None:
-    n = len(r.t_s)
-    every = max(1, round(1.0 / (r.config.log_rate_hz * TICK_US * 1e-6)))
-    k = np.arange(0, n, every)
+    write_summary(paths["summary"], summary if summary is not None else summarize(result))
+    every = max(1, round(1.0 / (cfg.log_rate_hz * TICK_US * 1e-6)))
+    k = np.arange(0, len(r.t_s), every)
     truth = r.T_c_o_true[k]
-    s_pos, s_rot = pose_errors(r.T_c_o_est[k], np.broadcast_to(r.T_c_o_des, (len(k), 4, 4)))
-    g_pos, _ = pose_errors(truth, np.broadcast_to(r.T_c_o_des, (len(k), 4, 4)))
+    des = np.broadcast_to(r.T_c_o_des, (len(k), 4, 4))
+    s_pos, s_rot = pose_errors(r.T_c_o_est[k], des)
+    g_pos, _ = pose_errors(truth, des)
     header = [
         "t_s", "obj_x_m", "obj_y_m", "obj_z_m", "cam_x_m", "cam_y_m", "cam_z_m",
         "est_x_m", "est_y_m", "est_z_m", "true_x_m", "true_y_m", "true_z_m",
         "servo_pos_mm", "servo_rot_deg", "gt_servo_pos_mm", "pose_age_ms",
         "v_cmd_mps", "w_cmd_dps", "v_cam_mps", "watchdog",
     ]  # fmt: skip
-    cols = np.column_stack(
-        [
-            r.t_s[k],
-            r.T_w_o[k, :3, 3],
-            r.T_w_c[k, :3, 3],
-            r.T_c_o_est[k, :3, 3],
-            truth[:, :3, 3],
-            s_pos * 1e3,
-            np.rad2deg(s_rot),
-            g_pos * 1e3,
-            (r.t_s[k] - r.est_t_s[k]) * 1e3,
-            np.linalg.norm(r.v_cmd_w[k, :3], axis=1),
-            np.rad2deg(np.linalg.norm(r.v_cmd_w[k, 3:], axis=1)),
-            np.linalg.norm(r.v_cam_w[k, :3], axis=1),
-            r.watchdog[k].astype(float),
-        ]
+    cols = np.column_stack([
+        r.t_s[k], r.T_w_o[k, :3, 3], r.T_w_c[k, :3, 3], r.T_c_o_est[k, :3, 3], truth[:, :3, 3], s_pos * 1e3,
+        np.rad2deg(s_rot), g_pos * 1e3, (r.t_s[k] - r.est_t_s[k]) * 1e3, np.linalg.norm(r.v_cmd_w[k, :3], axis=1),
+        np.rad2deg(np.linalg.norm(r.v_cmd_w[k, 3:], axis=1)), np.linalg.norm(r.v_cam_w[k, :3], axis=1),
+        r.watchdog[k].astype(float),
+    ])  # fmt: skip
+    write_log(paths["log"], header, cols)
+    title = f"{cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s" + (
+        ", feed-forward" if cfg.feedforward else ""
     )
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows([[f"{v:.6g}" for v in row] for row in cols])
-
-
-def plot_motion(r: EpisodeResult, path: str | Path) -> None:
-    """The paper's Fig. 5: camera and object displacement along each world axis from their start
-    poses (mm), the object also as reconstructed from the camera pose and the estimate (what the
-    paper could plot), and the camera's rotation in the world from its start orientation (deg)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = r.t_s
-    d_obj = (r.T_w_o[:, :3, 3] - r.T_w_o[:1, :3, 3]) * 1e3
-    d_cam = (r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3]) * 1e3
-    recon = r.T_w_c @ r.T_c_o_est
-    d_rec = (recon[:, :3, 3] - recon[:1, :3, 3]) * 1e3
-    cam_rot = np.rad2deg(camera_rotation_rad(r.T_w_c))
-    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(8, 8), constrained_layout=True)
-    for i, name in enumerate("xyz"):
-        ax = axes[i]
-        ax.plot(t, d_cam[:, i], color="tab:blue", label="camera")
-        ax.plot(t, d_obj[:, i], color="tab:orange", label="object (true)")
-        ax.plot(t, d_rec[:, i], color="tab:orange", ls=":", lw=1, label="object (camera · estimate)")
-        ax.set_ylabel(f"{name} (mm)")
-        ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[3].plot(t, cam_rot, color="tab:blue")
-    axes[3].set_ylabel("camera rot. (deg)")
-    axes[3].set_xlabel("time since servo start (s)")
-    axes[3].grid(alpha=0.3)
-    cfg = r.config
-    fig.suptitle(
-        f"{cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s"
-        + (", feed-forward" if cfg.feedforward else "")
+    plot_motion(
+        paths["motion"], r.t_s, r.T_w_c, r.T_w_c @ r.T_c_o_est, title, T_w_o_true=r.T_w_o, spells=r.watchdog_events
     )
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return paths
