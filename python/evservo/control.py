@@ -28,40 +28,12 @@ from typing import Literal
 import numpy as np
 
 from evservo import geometry
+from evservo.geometry import rotmat, rotvec
+from evservo.limits import CartesianLimits
+
+__all__ = ["CartesianLimits", "Pbvs", "PbvsCommand", "TwistEstimator", "pose_error", "rotmat", "rotvec"]
 
 State = Literal["ok", "stale", "rejected", "stopped"]
-
-
-def rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vector (axis × angle, radians, angle in [0, π]) of a 3×3 rotation matrix.
-
-    Closed form rather than scipy's ``Rotation`` because this runs several times per control period
-    and scipy's object construction dominates at that size.
-    """
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])  # 2 sin θ · axis
-    c = float(np.clip((R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0, -1.0, 1.0))
-    s = 0.5 * float(np.linalg.norm(w))
-    theta = float(np.arctan2(s, c))
-    if theta < 1e-6:
-        return 0.5 * w * (1.0 + theta * theta / 6.0)
-    if theta < np.pi - 1e-4:
-        return w * (theta / (2.0 * s))
-    # Near π the antisymmetric part vanishes; the axis comes from the symmetric part (1−c)·u uᵀ.
-    S = (0.5 * (R + R.T) - c * np.eye(3)) / (1.0 - c)
-    i = int(np.argmax(np.diag(S)))
-    u = S[:, i] / np.sqrt(S[i, i])
-    if float(u @ w) < 0:
-        u = -u
-    return theta * u
-
-
-def rotmat(w: np.ndarray) -> np.ndarray:
-    """3×3 rotation matrix of a rotation vector (radians), by Rodrigues' formula."""
-    theta = float(np.linalg.norm(w))
-    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if theta < 1e-8:
-        return np.eye(3) + K + 0.5 * (K @ K)
-    return np.eye(3) + (np.sin(theta) / theta) * K + ((1.0 - np.cos(theta)) / theta**2) * (K @ K)
 
 
 def pose_error(T_w_c: np.ndarray, T_w_ctgt: np.ndarray) -> np.ndarray:
@@ -74,26 +46,6 @@ def pose_error(T_w_c: np.ndarray, T_w_ctgt: np.ndarray) -> np.ndarray:
 def _clip_norm(x: np.ndarray, limit: float) -> np.ndarray:
     n = float(np.linalg.norm(x))
     return x if n <= limit else x * (limit / n)
-
-
-@dataclass(frozen=True)
-class CartesianLimits:
-    """Limits on the camera's motion: norms of the linear (m/s, m/s²) and angular (rad/s, rad/s²) parts.
-
-    Defaults are about half of the Panda's Cartesian limits (Franka FCI: 1.7 m/s, 2.5 rad/s, 13 m/s²,
-    25 rad/s²), leaving headroom for the joint-space QP that follows and for the arm's other limits.
-    """
-
-    max_lin_vel: float = 0.8
-    max_ang_vel: float = 1.5
-    max_lin_acc: float = 4.0
-    max_ang_acc: float = 8.0
-
-    def __post_init__(self) -> None:
-        for name in ("max_lin_vel", "max_ang_vel", "max_lin_acc", "max_ang_acc"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {v}")
 
 
 @dataclass(frozen=True)

@@ -64,6 +64,8 @@ from evservo import _evcore, events, geometry
 from evservo.control import CartesianLimits, Pbvs
 from evservo.geometry import pose_errors, rotation_from_first_rad
 from evservo.robots.base import Arm, shift_twist
+from evservo.robots.gated import GatedArm
+from evservo.robots.safety import SafetyGate
 from evservo.runtime.metrics import rms
 from evservo.runtime.report import plot_motion, write_log, write_summary
 from evservo.runtime.watchdog import WatchdogSpell
@@ -217,8 +219,10 @@ class _CameraPump(threading.Thread):
             self.join(timeout_s)
 
 
-def _gate_of(arm: Arm) -> Any:
-    return getattr(arm, "gate", None)
+def _gate_of(arm: Arm) -> SafetyGate | None:
+    """The arm's safety gate, whose limits bound the controller and whose output is logged; an arm
+    without one (a bare :class:`Arm`) is commanded as it is."""
+    return arm.gate if isinstance(arm, GatedArm) else None
 
 
 def run_real_loop(
@@ -443,7 +447,7 @@ def run_real_loop(
     )
 
 
-def _gate_summary(gate: Any) -> dict[str, Any]:
+def _gate_summary(gate: SafetyGate | None) -> dict[str, Any]:
     """Counts from the gate's history (its last ``history.maxlen`` records)."""
     if gate is None:
         return {}
