@@ -63,7 +63,8 @@ from typing import Any
 import numpy as np
 
 from evservo import _evcore, events, geometry
-from evservo.control import CartesianLimits, Pbvs
+from evservo.control import Pbvs
+from evservo.limits import CartesianLimits
 from evservo.robots.base import Arm, shift_twist
 from evservo.sim.episode import camera_rotation_rad, pose_errors, rms
 
@@ -311,7 +312,7 @@ def run_real_loop(
         T_w_c = arm.T_w_e() @ T_e_c
         pbvs.start(T_w_c, est.T_c_o, t_s=pose_t)
         des = est.T_c_o.copy() if T_c_o_des is None else geometry.as_pose(T_c_o_des, "T_c_o_des")
-        pbvs.T_c_o_des = des.copy()
+        pbvs.set_desired(des)
         est_T, est_t, last_accepted_t, est_t_us = est.T_c_o.copy(), pose_t, pose_t, last_t_us
         if T_c_o_des is not None:
             d_mm = geometry.translation_error_m(des, est.T_c_o) * 1e3

@@ -44,7 +44,7 @@ import yaml
 
 from evservo import geometry
 from evservo._evcore import Camera
-from evservo.control import CartesianLimits
+from evservo.limits import CartesianLimits
 from evservo.robots.safety import Workspace
 
 __all__ = ["RigConfig", "RigConfigError", "load_rig_config"]

@@ -23,7 +23,7 @@ from typing import Any, Literal
 import numpy as np
 
 from evservo import geometry
-from evservo.control import CartesianLimits
+from evservo.limits import CartesianLimits
 from evservo.robots.safety import SafetyGate, Workspace
 
 __all__ = ["FrankaArm"]

@@ -21,7 +21,8 @@ from collections.abc import Callable
 import numpy as np
 
 from evservo import geometry
-from evservo.control import CartesianLimits, rotmat
+from evservo.geometry import rotmat
+from evservo.limits import CartesianLimits
 from evservo.robots.safety import SafetyGate, Workspace
 
 __all__ = ["DEFAULT_START", "KinematicArm"]

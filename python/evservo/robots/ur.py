@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 
 from evservo import geometry
-from evservo.control import CartesianLimits, rotmat
+from evservo.geometry import rotmat
+from evservo.limits import CartesianLimits
 from evservo.robots.safety import SafetyGate, Workspace
 
 __all__ = ["RECEIVE_VARIABLES", "UrArm"]
