@@ -95,8 +95,8 @@ def rotation_from_first_rad(T: np.ndarray) -> np.ndarray:
 def rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation vector (axis × angle, radians, angle in [0, π]) of a 3×3 rotation matrix.
 
-    Closed form rather than scipy's ``Rotation`` because this runs several times per control period
-    and scipy's object construction dominates at that size.
+    Closed form rather than scipy's ``Rotation`` because the controller runs it several times per
+    control period and scipy's object construction dominates at that size.
     """
     w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])  # 2 sin θ · axis
     c = float(np.clip((R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0, -1.0, 1.0))
@@ -122,3 +122,13 @@ def rotmat(w: np.ndarray) -> np.ndarray:
     if theta < 1e-8:
         return np.eye(3) + K + 0.5 * (K @ K)
     return np.eye(3) + (np.sin(theta) / theta) * K + ((1.0 - np.cos(theta)) / theta**2) * (K @ K)
+
+
+def advance(T_w_x: np.ndarray, twist_w: np.ndarray, dt_s: float) -> np.ndarray:
+    """Pose of frame x after ``dt_s`` seconds (negative: before) at the constant world-frame twist
+    ``twist_w`` = (linear velocity of x's origin m/s, angular velocity rad/s): the origin moves along a
+    straight line and the frame turns about a fixed world axis through it."""
+    T = np.eye(4)
+    T[:3, :3] = rotmat(twist_w[3:] * dt_s) @ T_w_x[:3, :3]
+    T[:3, 3] = T_w_x[:3, 3] + twist_w[:3] * dt_s
+    return T

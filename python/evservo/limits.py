@@ -1,4 +1,4 @@
-"""Limits on the camera's (end effector's) Cartesian motion, shared by the controller and the arms."""
+"""Limits on the camera's Cartesian motion, shared by the controller and the arms' safety gates."""
 
 from __future__ import annotations
 

@@ -61,8 +61,9 @@ from typing import Any
 import numpy as np
 
 from evservo import _evcore, events, geometry
-from evservo.control import CartesianLimits, Pbvs
+from evservo.control import Pbvs
 from evservo.geometry import pose_errors, rotation_from_first_rad
+from evservo.limits import CartesianLimits
 from evservo.robots.base import Arm, shift_twist
 from evservo.robots.gated import GatedArm
 from evservo.robots.safety import SafetyGate
@@ -282,7 +283,7 @@ def run_real_loop(
         feed = _PoseFeed(tracker, pump, t0, est)
         pbvs.start(arm.T_w_e() @ T_e_c, est.T_c_o, t_s=feed.t_s)
         des = est.T_c_o.copy() if T_c_o_des is None else geometry.as_pose(T_c_o_des, "T_c_o_des")
-        pbvs.T_c_o_des = des.copy()
+        pbvs.set_desired(des)
         if T_c_o_des is not None:
             d_mm = geometry.translation_error_m(des, est.T_c_o) * 1e3
             d_deg = np.rad2deg(geometry.rotation_error_rad(des, est.T_c_o))
