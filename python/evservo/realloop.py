@@ -64,6 +64,7 @@ from evservo import _evcore, events, geometry
 from evservo.control import Pbvs
 from evservo.geometry import pose_errors, rotation_from_first_rad
 from evservo.limits import CartesianLimits
+from evservo.outputs import make_out_dir
 from evservo.robots.base import Arm, shift_twist
 from evservo.robots.gated import GatedArm
 from evservo.robots.safety import SafetyGate
@@ -77,6 +78,9 @@ __all__ = [
 ]  # fmt: skip
 
 log = logging.getLogger(__name__)
+
+#: The files :func:`write_outputs` writes into the run's directory.
+OUTPUTS = ("summary.json", "log.csv", "motion.png")
 
 
 class TrackingError(RuntimeError):
@@ -558,10 +562,9 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
     through (m/s, deg/s), that twist's components in the robot base frame (in a dry run: what would
     have been sent — check its directions before the first real run), cycle time and lateness (ms),
     the controller's state."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_out_dir(out_dir, stale=OUTPUTS)
     paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
-    write_summary(paths["summary"], summary if summary is not None else summarize(r))
+    summary = summary if summary is not None else summarize(r)
     n = len(r.t_s)
     every = max(1, round(r.config.rate_hz / r.config.log_rate_hz))
     keep = np.zeros(n, bool)
@@ -587,4 +590,5 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
     write_log(paths["log"], header, cols, [r.state[i] for i in k])
     title = f"{r.meta.get('robot', 'arm')}, {r.meta.get('camera', 'camera')}: {r.ended}"
     plot_motion(paths["motion"], r.t_s, r.T_w_c, r.T_w_c @ r.T_c_o_est, title, spells=r.watchdog)
+    write_summary(paths["summary"], summary)  # last: a summary.json is there only when the other outputs are
     return paths

@@ -5,6 +5,7 @@ itself is :mod:`evservo.realloop`)."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 # The paper's Tables I and II (RMS servoing error over the run: pos. mm, rot. deg), for comparison.
@@ -92,10 +93,12 @@ def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
     """Run the episode with a progress bar, write the outputs, print the summary beside the paper."""
     from tqdm import tqdm
 
-    from evservo.sim.episode import run_episode, summarize, write_outputs
+    from evservo.outputs import prepare_out_dir
+    from evservo.sim.episode import OUTPUTS, run_episode, summarize, write_outputs
 
     cfg = config_from_args(args)
-    out = args.out or default_out
+    # Checked, and cleared of an earlier run's files, before the run: never fails after it.
+    out = prepare_out_dir(args.out or default_out, stale=OUTPUTS)
     print(
         f"servo (sim): {cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s, "
         f"{cfg.duration_s} s, feed-forward {'on' if cfg.feedforward else 'off'}, cost model {cfg.cost_model}"
@@ -106,6 +109,9 @@ def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
     paths = write_outputs(result, out, summary)
     print_summary(summary)
     print(f"figure: {paths['motion']}\nsummary: {paths['summary']}\nlog: {paths['log']}")
+    if summary["interrupted"]:
+        print(f"evservo: interrupted: partial outputs (marked interrupted) in {out}", file=sys.stderr)
+        return 130
     return 0
 
 

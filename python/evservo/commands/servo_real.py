@@ -91,7 +91,8 @@ def run_real(args: argparse.Namespace) -> int:
 
 def _run_real(args: argparse.Namespace) -> int:
     from evservo import cameras, io
-    from evservo.realloop import RealLoopConfig, run_real_loop, summarize, write_outputs
+    from evservo.outputs import prepare_out_dir
+    from evservo.realloop import OUTPUTS, RealLoopConfig, run_real_loop, summarize, write_outputs
     from evservo.robots.config import load_rig_config
     from evservo.runtime.inputs import resolve_camera
     from evservo.tracking import Tracker
@@ -103,6 +104,8 @@ def _run_real(args: argparse.Namespace) -> int:
         raise InputError(f"--robot {spec.kind}:… needs --config RIG.yaml (camera intrinsics, hand-eye, limits)")
     if spec.kind != "franka" and args.realtime is not None:
         raise InputError("--realtime applies to franka:HOST only")
+    # The outputs are checked before anything opens the camera or the arm: never a failure after a run.
+    out = prepare_out_dir(Path(args.out) if args.out else Path("runs") / "servo-real", stale=OUTPUTS)
     rig = load_rig_config(args.config) if args.config else None
     given = {field: getattr(args, opt) for opt, field in CONFIG_OPTIONS.items() if getattr(args, opt) is not None}
     cfg = RealLoopConfig(duration_s=args.duration, feedforward=args.feedforward, dry_run=args.dry_run, **given)
@@ -157,7 +160,6 @@ def _run_real(args: argparse.Namespace) -> int:
             arm.close()
     finally:
         source.close()
-    out = Path(args.out) if args.out else Path("runs") / "servo-real"
     summary = summarize(result, gt=(rec.gt_t_us, rec.gt_T) if rec is not None else None)
     paths = write_outputs(result, out, summary)
     print_real_summary(summary)

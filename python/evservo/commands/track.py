@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
 def run(args: argparse.Namespace) -> int:
     from evservo.camera_file import load_camera_file
+    from evservo.outputs import prepare_out_dir
     from evservo.runtime.inputs import parse_pose
-    from evservo.runtime.track import track_file
+    from evservo.runtime.track import OUTPUTS, track_file
     from evservo.tracking import FRONTENDS, SOLVERS
 
     if args.solver not in SOLVERS:
@@ -18,16 +20,20 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"unknown front-end {args.frontend!r}; choose one of {FRONTENDS}")
     camera = load_camera_file(args.camera) if args.camera else None
     init = parse_pose(args.init_pose) if args.init_pose else None
-    out = Path(args.out)
     solvers = SOLVERS if args.compare else (args.solver,)
+    # Checked (and cleared of an earlier run's files) before any tracking starts.
+    outs = {solver: prepare_out_dir(Path(args.out) / solver if args.compare else args.out, stale=OUTPUTS)
+            for solver in solvers}  # fmt: skip
     rows, notes = [], []
     for solver in solvers:
         s = track_file(
-            args.recording, solver, out / solver if args.compare else out, model=args.model, init_pose=init,
+            args.recording, solver, outs[solver], model=args.model, init_pose=init,
             camera=camera, frontend=args.frontend, batch_us=args.batch_us, max_seconds=args.max_seconds,
             progress=not args.quiet, notes=notes,
         )  # fmt: skip
         rows.append(s)
+        if s["interrupted"]:
+            break
     for line in dict.fromkeys(notes):
         print(f"note: {line}")
 
@@ -42,6 +48,10 @@ def run(args: argparse.Namespace) -> int:
         )
     if any(s["n_time_clamped"] for s in rows):
         print(f"note: {rows[0]['n_time_clamped']} events stepped back in time and were clamped to the newest time")
+    if rows[-1]["interrupted"]:
+        print(f"evservo: interrupted: partial outputs (marked interrupted) in {outs[rows[-1]['solver']]}",
+              file=sys.stderr)  # fmt: skip
+        return 130
     return 0
 
 

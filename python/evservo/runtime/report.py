@@ -13,13 +13,15 @@ from pathlib import Path
 import numpy as np
 
 from evservo.geometry import rotation_from_first_rad
+from evservo.outputs import write_text_atomic
 from evservo.runtime.watchdog import WatchdogSpell
 
 
 def write_summary(path: str | Path, summary: dict) -> Path:
-    """``summary`` as indented JSON (numpy scalars as floats)."""
+    """``summary`` as indented JSON (numpy scalars as floats), replaced atomically: a reader sees the
+    previous file or the whole new one. Writers call it last, after the run's other outputs."""
     p = Path(path)
-    p.write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    write_text_atomic(p, json.dumps(summary, indent=2, default=float) + "\n")
     return p
 
 

@@ -20,8 +20,13 @@ import numpy as np
 
 from evservo import _evcore
 from evservo.geometry import pose_errors
+from evservo.interrupt import StopOnInterrupt
+from evservo.outputs import make_out_dir
 from evservo.runtime.inputs import resolve_camera
 from evservo.runtime.report import write_summary
+
+#: The files one tracking run writes into its output directory.
+OUTPUTS = ("summary.json", "poses.csv", "overlay.png", "error.png")
 
 
 def track_file(
@@ -40,9 +45,7 @@ def track_file(
     from evservo.sim.record import gt_at, is_recording, load_recording
     from evservo.tracking import Tracker
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no such recording: {path}")
+    path = io.require_regular_file(path, "recording")
     meta = io.info(path)
     rec = load_recording(path) if is_recording(path) else None
     cam = resolve_camera(
@@ -59,6 +62,8 @@ def track_file(
         raise ValueError(f"{path} holds no events")
     if batch_us < 1:
         raise ValueError(f"--batch-us must be >= 1, got {batch_us}")
+    if max_seconds is not None and not (np.isfinite(max_seconds) and max_seconds > 0):
+        raise ValueError(f"--max-seconds must be a finite number of seconds > 0, got {max_seconds}")
 
     trk = Tracker(cam, obj, init_pose, solver=solver, frontend=frontend)
     t_first, t_last = meta["t_first_us"], meta["t_last_us"]
@@ -70,33 +75,39 @@ def track_file(
     n_clamped, t_max, solve_s = 0, None, 0.0
     end = (t_first // batch_us + 1) * batch_us
     bar = tqdm(total=n_slices, unit="batch", desc=f"{solver:>7}", disable=not progress, leave=False)
-    for k, ev in enumerate(io.open_events(path, delta_t_us=batch_us)):
-        if end - batch_us > t_last:
-            break
-        ev, n, t_max = events.clamp_time(ev, t_max)
-        n_clamped += n
-        started = time.perf_counter()
-        est = trk.update(ev)
-        solve_s += time.perf_counter() - started
-        ts.append(end)
-        Ts.append(est.T_c_o)
-        lost.append(est.lost)
-        counts.append(len(ev))
-        if k in snap_at:
-            field, origin = trk.field()
-            snaps.append((end, field.copy(), origin, trk.projected_points().copy()))
-        end += batch_us
-        bar.update()
+    interrupted = False
+    with StopOnInterrupt() as stop:
+        for k, ev in enumerate(io.open_events(path, delta_t_us=batch_us)):
+            if stop.requested:  # Ctrl-C: keep what was tracked, marked as interrupted
+                interrupted = True
+                break
+            if end - batch_us > t_last:
+                break
+            ev, n, t_max = events.clamp_time(ev, t_max)
+            n_clamped += n
+            started = time.perf_counter()
+            est = trk.update(ev)
+            solve_s += time.perf_counter() - started
+            ts.append(end)
+            Ts.append(est.T_c_o)
+            lost.append(est.lost)
+            counts.append(len(ev))
+            if k in snap_at:
+                field, origin = trk.field()
+                snaps.append((end, field.copy(), origin, trk.projected_points().copy()))
+            end += batch_us
+            bar.update()
     bar.close()
-    ts, T_est, lost = np.array(ts), np.array(Ts), np.array(lost, bool)
+    ts, T_est, lost = np.array(ts), np.array(Ts).reshape(-1, 4, 4), np.array(lost, bool)
     summary = dict(
-        recording=str(path), solver=solver, frontend=frontend, object=str(obj), batch_us=batch_us,
+        recording=str(path), interrupted=interrupted, solver=solver, frontend=frontend, object=str(obj),
+        batch_us=batch_us,
         n_updates=len(ts), n_events=int(np.sum(counts)), n_time_clamped=n_clamped, solve_s=solve_s,
         tracker_rate_hz=len(ts) / solve_s if solve_s > 0 else 0.0, lost=bool(lost[-1]) if len(lost) else False,
         lost_fraction=float(lost.mean()) if len(lost) else 0.0, width=cam.width, height=cam.height,
     )  # fmt: skip
     err_mm = err_deg = None
-    if rec is not None:
+    if rec is not None and len(ts):
         T_gt = gt_at(rec.gt_t_us, rec.gt_T, ts)
         pos_m, rot_rad = pose_errors(T_est, T_gt)
         err_mm, err_deg = pos_m * 1e3, np.rad2deg(rot_rad)
@@ -107,11 +118,11 @@ def track_file(
         )  # fmt: skip
     else:
         summary.update(gt_track_pos_rms_mm=None, gt_track_rot_rms_deg=None)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_out_dir(out, stale=OUTPUTS)
     _write_poses(out / "poses.csv", ts, T_est, lost, err_mm, err_deg)
-    write_summary(out / "summary.json", summary)
     _plot_overlay(out / "overlay.png", snaps, solver)
     _plot_error(out / "error.png", ts, err_mm, err_deg, lost, solver)
+    write_summary(out / "summary.json", summary)  # last: a summary.json is there only when the others are
     return summary
 
 

@@ -42,6 +42,8 @@ import numpy as np
 from evservo import _evcore, geometry, trajectories
 from evservo.control import Pbvs
 from evservo.geometry import pose_errors, rotation_from_first_rad
+from evservo.interrupt import INTERRUPTED, StopOnInterrupt
+from evservo.outputs import make_out_dir
 from evservo.robots import PoseFollower, shift_twist
 from evservo.runtime.metrics import estimate_lag_s, rms
 from evservo.runtime.report import plot_motion, write_log, write_summary
@@ -54,6 +56,8 @@ from evservo.tracking import FRONTENDS, SOLVERS, Tracker
 COST_MODELS = ("measured", "fixed")
 TICK_US = 1000  # physics step, event batch and Panda command period
 UR_PERIOD_US = 2000
+#: The files :func:`write_outputs` writes into an episode's directory.
+OUTPUTS = ("summary.json", "log.csv", "motion.png")
 
 
 @dataclass(frozen=True)
@@ -318,56 +322,60 @@ def run_episode(
     T_c_o_true = [T_c_o0]  # per tick, to score an estimate against the truth at its own time
     v_cmd, watchdog = np.zeros(6), False
     last_seq, ended, lost_at, n_events, done = 0, "duration", None, 0, 0
-    for k in range(n):
-        t_us = k * TICK_US
-        t = t_us * 1e-6
-        try:
-            if t_us % UR_PERIOD_US == 0:
-                follower.command(t)
-            T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
-            v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
-            est = tracker.latest(t_us)
-            if k % ctrl_every == 0:
-                # A pose counts once, and not at all when the tracker flags itself lost.
-                fresh = est.seq != last_seq and not est.lost
-                last_seq = est.seq
-                cmd = pbvs.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6)
-                v_cmd, watchdog = cmd.v_c_w, cmd.watchdog
-            if watchdog and not np.any(v_cmd):
-                scene.panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
-            else:
-                scene.panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), TICK_US * 1e-6)
-        except RuntimeError as err:  # an infeasible IK QP: report it, do not crash the run
-            ended = f"arm error: {err}"
-            break
-        T_est = est.T_c_o
-        j = min(round(est.t_us / TICK_US), k)
-        if geometry.translation_error_m(T_est, T_c_o_true[j]) > cfg.lost_pos_m or (
-            geometry.rotation_error_rad(T_est, T_c_o_true[j]) > lost_rot
-        ):
-            ended, lost_at = "tracking lost", t
-            break
-        rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = scene.T_w_o(), T_w_c, T_est
-        rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
-        rec["watchdog"][k] = watchdog
-        done = k + 1
+    with StopOnInterrupt() as stop:
+        for k in range(n):
+            if stop.requested:  # Ctrl-C: the ticks done so far make a partial result
+                ended = INTERRUPTED
+                break
+            t_us = k * TICK_US
+            t = t_us * 1e-6
+            try:
+                if t_us % UR_PERIOD_US == 0:
+                    follower.command(t)
+                T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
+                v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
+                est = tracker.latest(t_us)
+                if k % ctrl_every == 0:
+                    # A pose counts once, and not at all when the tracker flags itself lost.
+                    fresh = est.seq != last_seq and not est.lost
+                    last_seq = est.seq
+                    cmd = pbvs.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6)
+                    v_cmd, watchdog = cmd.v_c_w, cmd.watchdog
+                if watchdog and not np.any(v_cmd):
+                    scene.panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
+                else:
+                    scene.panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), TICK_US * 1e-6)
+            except RuntimeError as err:  # an infeasible IK QP: report it, do not crash the run
+                ended = f"arm error: {err}"
+                break
+            T_est = est.T_c_o
+            j = min(round(est.t_us / TICK_US), k)
+            if geometry.translation_error_m(T_est, T_c_o_true[j]) > cfg.lost_pos_m or (
+                geometry.rotation_error_rad(T_est, T_c_o_true[j]) > lost_rot
+            ):
+                ended, lost_at = "tracking lost", t
+                break
+            rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = scene.T_w_o(), T_w_c, T_est
+            rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
+            rec["watchdog"][k] = watchdog
+            done = k + 1
 
-        scene.step(1)
-        t_next = t_us + TICK_US
-        T_now = scene.T_c_o()
-        T_c_o_true.append(T_now)
-        if arms is None:
-            events = source.events_until(t_next, T_now, scene.T_w_c())
-        else:
-            T_w_c = scene.T_w_c()
-            events = source.events_until(t_next, T_now, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
-        if drop is not None and len(events):
-            events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
-        n_events += len(events)
-        tracker.deliver(t_next + latency_us, events)
-        tracker.advance(t_next)
-        if progress is not None and (k + 1) % 100 == 0:
-            progress(100)
+            scene.step(1)
+            t_next = t_us + TICK_US
+            T_now = scene.T_c_o()
+            T_c_o_true.append(T_now)
+            if arms is None:
+                events = source.events_until(t_next, T_now, scene.T_w_c())
+            else:
+                T_w_c = scene.T_w_c()
+                events = source.events_until(t_next, T_now, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
+            if drop is not None and len(events):
+                events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
+            n_events += len(events)
+            tracker.deliver(t_next + latency_us, events)
+            tracker.advance(t_next)
+            if progress is not None and (k + 1) % 100 == 0:
+                progress(100)
     if progress is not None and done % 100:
         progress(done % 100)
 
@@ -407,6 +415,7 @@ def summarize(result: EpisodeResult) -> dict:
     n_steps = sum(r.steps.values())
     return {
         "completed": r.ended == "duration",
+        "interrupted": r.ended == INTERRUPTED,
         "ended": r.ended,
         "lost_at_s": r.lost_at_s,
         "simulated_s": sim_s,
@@ -433,12 +442,12 @@ def summarize(result: EpisodeResult) -> dict:
 
 def write_outputs(result: EpisodeResult, out_dir: str | Path, summary: dict | None = None) -> dict[str, Path]:
     """Write ``summary.json``, ``log.csv`` (at ``config.log_rate_hz``) and ``motion.png`` (the paper's
-    Fig. 5) into ``out_dir``; returns their paths by name."""
+    Fig. 5) into ``out_dir``; returns their paths by name. The summary is written last (and
+    atomically): a ``summary.json`` is there only when the episode's other outputs are."""
     r, cfg = result, result.config
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_out_dir(out_dir, stale=OUTPUTS)
     paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
-    write_summary(paths["summary"], summary if summary is not None else summarize(result))
+    summary = summary if summary is not None else summarize(result)
     every = max(1, round(1.0 / (cfg.log_rate_hz * TICK_US * 1e-6)))
     k = np.arange(0, len(r.t_s), every)
     truth = r.T_c_o_true[k]
@@ -464,4 +473,5 @@ def write_outputs(result: EpisodeResult, out_dir: str | Path, summary: dict | No
     plot_motion(
         paths["motion"], r.t_s, r.T_w_c, r.T_w_c @ r.T_c_o_est, title, T_w_o_true=r.T_w_o, spells=r.watchdog_events
     )
+    write_summary(paths["summary"], summary)
     return paths
