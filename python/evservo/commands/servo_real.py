@@ -12,13 +12,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-ROBOT_KINDS = ("ur", "franka", "sim")
 #: Options of the real loop that set a :class:`~evservo.realloop.RealLoopConfig` field (its defaults hold).
 CONFIG_OPTIONS = {"settle": "settle_s", "stiffness": "stiffness", "rate": "rate_hz", "stale_after": "stale_after_s",
                   "replay_speed": "speed"}  # fmt: skip
@@ -28,27 +26,6 @@ class InputError(ValueError):
     """Bad command-line input (exit code 2)."""
 
 
-@dataclass(frozen=True)
-class RobotSpec:
-    kind: str  # ur, franka, sim
-    host: str | None
-
-
-def parse_robot(spec: str) -> RobotSpec:
-    """``ur:HOST``, ``franka:HOST`` or ``sim``."""
-    kind, _, host = spec.partition(":")
-    kind = kind.strip().lower()
-    if kind not in ROBOT_KINDS:
-        raise InputError(f"--robot {spec!r}: want ur:HOST, franka:HOST or sim")
-    if kind == "sim":
-        if host:
-            raise InputError(f"--robot {spec!r}: 'sim' takes no host")
-        return RobotSpec("sim", None)
-    if not host.strip():
-        raise InputError(f"--robot {spec!r}: give the controller's address, e.g. {kind}:192.168.1.10")
-    return RobotSpec(kind, host.strip())
-
-
 def _pose(text: str, option: str) -> np.ndarray:
     from evservo.runtime.inputs import parse_object_pose
 
@@ -56,23 +33,6 @@ def _pose(text: str, option: str) -> np.ndarray:
         return parse_object_pose(text, option)
     except ValueError as err:
         raise InputError(str(err)) from None
-
-
-def _open_arm(spec: RobotSpec, rig: Any, dry_run: bool, realtime: str) -> Any:
-    from evservo.robots.kinematic import KinematicArm
-
-    T_e_c = rig.T_e_c if rig else None
-    limits = rig.limits if rig else None
-    workspace = rig.workspace if rig else None
-    if spec.kind == "sim":
-        return KinematicArm(T_e_c=T_e_c, limits=limits, workspace=workspace, dry_run=dry_run)
-    if spec.kind == "ur":
-        from evservo.robots.ur import UrArm
-
-        return UrArm(spec.host, T_e_c=T_e_c, limits=limits, workspace=workspace, dry_run=dry_run)
-    from evservo.robots.franka import FrankaArm
-
-    return FrankaArm(spec.host, T_e_c=T_e_c, limits=limits, workspace=workspace, dry_run=dry_run, realtime=realtime)
 
 
 def _recording(path: Path) -> Any:
@@ -94,10 +54,14 @@ def _run_real(args: argparse.Namespace) -> int:
     from evservo.outputs import prepare_out_dir
     from evservo.realloop import OUTPUTS, RealLoopConfig, run_real_loop, summarize, write_outputs
     from evservo.robots.config import load_rig_config
+    from evservo.robots.open import open_arm, parse_robot
     from evservo.runtime.inputs import resolve_camera
     from evservo.tracking import Tracker
 
-    spec = parse_robot(args.robot)
+    try:
+        spec = parse_robot(args.robot)
+    except ValueError as err:
+        raise InputError(str(err)) from None
     if args.camera is None:
         raise InputError("--robot needs --camera prophesee|dv|FILE")
     if spec.kind != "sim" and args.config is None:
@@ -143,8 +107,7 @@ def _run_real(args: argparse.Namespace) -> int:
         if desired is None and rig is not None:
             desired = rig.desired_pose
         tracker = Tracker(camera, model, init, solver=args.tracker)
-        realtime = args.realtime or "enforce"
-        arm = _open_arm(spec, rig, args.dry_run, realtime)
+        arm = open_arm(spec, rig, args.dry_run, args.realtime or "enforce")
         meta = {
             "robot": args.robot, "camera": args.camera, "model": str(model), "tracker": args.tracker,
             "rig_config": str(rig.path) if rig else None, "T_c_o_init": init.tolist(), "replay_speed": speed,

@@ -16,7 +16,7 @@ _WHERE = {
     "load_rig_config": "config", "PoseFollower": "follow", "FrankaArm": "franka",
     "solve_joint_velocities": "ik", "KinematicArm": "kinematic", "PANDA": "limits", "UR5E": "limits",
     "JointLimits": "limits", "GateRecord": "safety", "SafetyGate": "safety", "Workspace": "safety",
-    "SimArm": "sim_arm", "UrArm": "ur",
+    "SimArm": "sim_arm", "UrArm": "ur", "RobotSpec": "open", "open_arm": "open", "parse_robot": "open",
 }  # fmt: skip
 
 __all__ = [
@@ -31,11 +31,14 @@ __all__ = [
     "PoseFollower",
     "RigConfig",
     "RigConfigError",
+    "RobotSpec",
     "SafetyGate",
     "SimArm",
     "UrArm",
     "Workspace",
     "load_rig_config",
+    "open_arm",
+    "parse_robot",
     "shift_twist",
     "solve_joint_velocities",
 ]
@@ -49,6 +52,7 @@ if TYPE_CHECKING:
     from evservo.robots.ik import solve_joint_velocities
     from evservo.robots.kinematic import KinematicArm
     from evservo.robots.limits import PANDA, UR5E, JointLimits
+    from evservo.robots.open import RobotSpec, open_arm, parse_robot
     from evservo.robots.safety import GateRecord, SafetyGate, Workspace
     from evservo.robots.sim_arm import SimArm
     from evservo.robots.ur import UrArm
