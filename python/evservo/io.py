@@ -40,7 +40,6 @@ corrupt or truncated content) or ``ValueError`` (unsupported extension or argume
 from __future__ import annotations
 
 import os
-import stat
 import zipfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -52,6 +51,7 @@ import numpy as np
 from evservo import aedat4
 from evservo._evcore import DecodeError, RawReader
 from evservo.events import lossless_column
+from evservo.inputs import require_regular_file
 from evservo.outputs import atomic_path
 
 __all__ = ["EVENT_CD", "DecodeError", "info", "open_events", "read_events", "write_events"]
@@ -100,23 +100,6 @@ def _checked_path(path: str | os.PathLike) -> tuple[Path, str]:
     if suffix not in _SUFFIXES:
         raise ValueError(f"unsupported event file extension {suffix!r} for {p} (supported: {', '.join(_SUFFIXES)})")
     return require_regular_file(p, "event file"), suffix
-
-
-def require_regular_file(path: str | os.PathLike, what: str) -> Path:
-    """``path`` if it is a regular file (after symlinks); else ``FileNotFoundError`` when nothing is
-    there and ``ValueError`` naming what is there instead (a directory, a FIFO, a symlink loop, ...)."""
-    p = Path(path)
-    try:
-        mode = p.stat().st_mode
-    except FileNotFoundError:
-        raise FileNotFoundError(f"no such {what}: {p}") from None
-    except OSError as e:  # ELOOP, EACCES, ENOTDIR, ...
-        raise ValueError(f"{what} {p}: {e.strerror or e}") from None
-    if stat.S_ISDIR(mode):
-        raise ValueError(f"{what} {p} is a directory, not a file")
-    if not stat.S_ISREG(mode):
-        raise ValueError(f"{what} {p} is not a regular file (a FIFO, socket or device)")
-    return p
 
 
 def _columns_to_cd(cols: dict) -> np.ndarray:

@@ -20,6 +20,7 @@ import numpy as np
 
 from evservo import _evcore
 from evservo.geometry import pose_errors
+from evservo.inputs import require_regular_file
 from evservo.interrupt import StopOnInterrupt
 from evservo.outputs import make_out_dir
 from evservo.runtime.inputs import resolve_camera
@@ -45,7 +46,7 @@ def track_file(
     from evservo.sim.record import gt_at, is_recording, load_recording
     from evservo.tracking import Tracker
 
-    path = io.require_regular_file(path, "recording")
+    path = require_regular_file(path, "recording")
     meta = io.info(path)
     rec = load_recording(path) if is_recording(path) else None
     cam = resolve_camera(

@@ -56,6 +56,8 @@ from evservo.tracking import FRONTENDS, SOLVERS, Tracker
 COST_MODELS = ("measured", "fixed")
 TICK_US = 1000  # physics step, event batch and Panda command period
 UR_PERIOD_US = 2000
+#: Longest episode: the per-tick (1 kHz) record is preallocated, ~0.4 kB a tick.
+MAX_DURATION_S = 3600.0
 #: The files :func:`write_outputs` writes into an episode's directory.
 OUTPUTS = ("summary.json", "log.csv", "motion.png")
 
@@ -120,6 +122,17 @@ class EpisodeConfig:
             raise ValueError(f"unknown event source {self.event_source!r}; choose one of {sorted(EVENT_SOURCES)}")
         if not (self.duration_s > 0 and self.distance_m > 0 and self.speed_mps >= 0 and self.ramp_s >= 0):
             raise ValueError("duration and distance must be > 0, speed and ramp >= 0")
+        numbers = dict(duration_s=self.duration_s, distance_m=self.distance_m, speed_mps=self.speed_mps,
+                       rot_rate_dps=self.rot_rate_dps, ramp_s=self.ramp_s, stiffness=self.stiffness)  # fmt: skip
+        for name, v in numbers.items():
+            if not np.isfinite(v):
+                raise ValueError(f"{name} must be finite, got {v}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        # The trajectory (a kind or a CSV file) is checked here, before any simulation is set up.
+        trajectories.make_trajectory(self.trajectory, speed_mps=self.speed_mps, rot_rate_dps=self.rot_rate_dps)
+        if self.duration_s > MAX_DURATION_S:
+            raise ValueError(f"duration must be at most {MAX_DURATION_S:g} s (per-tick record), got {self.duration_s}")
         if not (self.lm_cost_s > 0 and self.search_cost_s > 0 and self.sensing_latency_s >= 0):
             raise ValueError("step costs must be > 0 and the latency >= 0")
         if round(self.control_period_s * 1e6) % TICK_US or self.control_period_s <= 0:
