@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 # The paper's Tables I and II (RMS servoing error over the run: pos. mm, rot. deg), for comparison.
@@ -21,20 +22,43 @@ PAPER_TABLE = {
 }
 
 
-def add_episode_arguments(p: argparse.ArgumentParser, *, distance: float, speed: float, duration: float) -> None:
+def add_episode_arguments(
+    p: argparse.ArgumentParser, *, distance: float, speed: float, duration: float, feedforward: bool = False
+) -> None:
     """Options shared by ``servo`` and ``demo`` (defaults differ)."""
-    from evservo.sim.episode import COST_MODELS
+    from evservo.sim.episode import COST_MODELS, PREDICTORS
     from evservo.tracking import SOLVERS
 
     p.add_argument("--object", default="box", help="box, drill, football or a mesh path")
     p.add_argument("--tracker", default="edft+", choices=SOLVERS)
-    p.add_argument("--trajectory", default="trans", help="trans, trans-rot, circle, figure8, stop-go or a CSV")
+    p.add_argument(
+        "--trajectory", default="trans", help="trans, trans-rot, circle, figure8, stop-go, reversal or a CSV"
+    )
     p.add_argument("--speed", type=float, default=speed, help="peak target speed, m/s")
     p.add_argument("--rot-rate", type=float, default=30.0, help="peak target rotation rate (trans-rot), deg/s")
     p.add_argument("--distance", type=float, default=distance, help="camera–object distance Z, m")
     p.add_argument("--duration", type=float, default=duration, help="servoing time, s")
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--feedforward", action="store_true", help="feed the target's velocity and acceleration forward")
+    law = p.add_mutually_exclusive_group()
+    law.add_argument(
+        "--feedforward",
+        action="store_true",
+        default=feedforward,
+        help="our controller: the target's motion fed forward within what the arm can deliver"
+        + (" (default)" if feedforward else ""),
+    )
+    law.add_argument(
+        "--paper-law",
+        dest="feedforward",
+        action="store_false",
+        help="the paper's literal Eq. (5)-(6) loop" + ("" if feedforward else " (default)"),
+    )
+    p.add_argument(
+        "--predictor",
+        default="velocity",
+        choices=PREDICTORS,
+        help="feed-forward: extrapolate the target across the latencies at constant velocity or acceleration",
+    )
     p.add_argument("--cost-model", default="measured", choices=COST_MODELS, help="tracker time charged to the clock")
     p.add_argument("--dropout", type=float, nargs=2, metavar=("START", "END"), help="lose all events in [START, END) s")
     p.add_argument(
@@ -65,6 +89,7 @@ def config_from_args(args: argparse.Namespace):
         duration_s=args.duration,
         seed=args.seed,
         feedforward=args.feedforward,
+        predictor=args.predictor,
         cost_model=args.cost_model,
         dropout_s=tuple(args.dropout) if args.dropout else None,
         event_source=args.events,
@@ -72,12 +97,10 @@ def config_from_args(args: argparse.Namespace):
     )
 
 
-def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
-    """Run the episode with a progress bar, write the outputs, print the summary beside the paper."""
-    from tqdm import tqdm
-
-    from evservo.sim.episode import run_episode, summarize, write_outputs
-
+def run_with_report(args: argparse.Namespace, default_out: Path, compare_paper_law: bool = False) -> int:
+    """Run the episode with a progress bar, write the outputs, print the summary beside the paper; with
+    ``compare_paper_law`` and feed-forward on, run the same episode with the paper's literal law too
+    (into ``OUT/paper-law``) and print one line for each and one for the paper."""
     if getattr(args, "render_arms", False) and args.events != "render":
         print(
             "evservo: error: --render-arms draws the arms in the rendered event camera: "
@@ -89,15 +112,46 @@ def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
     out = args.out or default_out
     print(
         f"servo (sim): {cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s, "
-        f"{cfg.duration_s} s, feed-forward {'on' if cfg.feedforward else 'off'}, cost model {cfg.cost_model}"
+        f"{cfg.duration_s} s, {_law(cfg.feedforward, cfg.predictor)}, cost model {cfg.cost_model}"
     )
+    summary = _run_and_write(cfg, out)
+    print_summary(summary)
+    if compare_paper_law and cfg.feedforward:
+        literal = replace(cfg, feedforward=False)
+        print(f"\nthe same episode with the paper's literal Eq. (5)-(6) loop ({out / 'paper-law'}):")
+        lit = _run_and_write(literal, out / "paper-law")
+        print_comparison(summary, lit)
+    return 0
+
+
+def _law(feedforward: bool, predictor: str) -> str:
+    return f"our controller (feed-forward, {predictor} predictor)" if feedforward else "the paper's literal law"
+
+
+def _run_and_write(cfg, out: Path) -> dict:
+    """Run one episode with a progress bar and write its outputs into ``out``; returns its summary."""
+    from tqdm import tqdm
+
+    from evservo.sim.episode import run_episode, summarize, write_outputs
+
     with tqdm(total=round(cfg.duration_s * 1000), unit="ms", desc="simulated", leave=False) as bar:
         result = run_episode(cfg, progress=bar.update)
     summary = summarize(result)
     paths = write_outputs(result, out, summary)
-    print_summary(summary)
     print(f"figure: {paths['motion']}\nsummary: {paths['summary']}\nlog: {paths['log']}")
-    return 0
+    return summary
+
+
+def print_comparison(ours: dict, literal: dict) -> None:
+    """One line each: our controller, the paper's literal law on the same episode, the paper's numbers."""
+    c = ours["config"]
+    print(f"\n{'':40}{'servo pos mm':>13}{'rot deg':>9}{'lag s':>8}  tracking")
+    for name, s in (("ours (feed-forward within arm limits)", ours), ("paper's literal Eq. (5)-(6)", literal)):
+        held = "held" if s["completed"] else f"lost at {s['simulated_s']:.2f} s"
+        print(f"{name:40}{s['servo_pos_rms_mm']:13.2f}{s['servo_rot_rms_deg']:9.2f}{s['lag_s']:8.3f}  {held}")
+    row = PAPER_TABLE.get((c["object"], round(c["distance_m"], 2), c["trajectory"], c["tracker"]))
+    if row:
+        print(f"{'paper, Table I/II (real bench)':40}{row[0]:13.2f}{row[1]:9.2f}{'≈0.15':>8}")
 
 
 def print_summary(s: dict) -> None:
