@@ -77,6 +77,21 @@ def rotation_error_rad(T_a: np.ndarray, T_b: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
 
 
+def pose_errors(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translation distance (m) and geodesic angle (rad) between pose stacks ``A`` and ``B`` (N, 4, 4)."""
+    pos = np.linalg.norm(A[:, :3, 3] - B[:, :3, 3], axis=1)
+    tr = np.einsum("nji,nji->n", A[:, :3, :3], B[:, :3, :3])  # trace(Aᵀ B)
+    return pos, np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+
+
+def rotation_from_first_rad(T: np.ndarray) -> np.ndarray:
+    """Geodesic angle (rad) of each orientation in the stack ``T`` (N, 4, 4) from the first one."""
+    if not len(T):
+        return np.zeros(0)
+    tr = np.einsum("ji,nji->n", T[0, :3, :3], T[:, :3, :3])
+    return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+
+
 def rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation vector (axis × angle, radians, angle in [0, π]) of a 3×3 rotation matrix.
 
