@@ -90,6 +90,12 @@ class Tracker:
         """Synchronous: run ``n`` single updates (one LM or one search step each) on the current events."""
         return self._core.step(n)
 
+    @property
+    def cycle_len(self) -> int:
+        """Steps per cycle (1 LM + N search for edft+, N + 1 steps otherwise); the thread rests after
+        this many steps without new events. Read it before :meth:`start`."""
+        return self._core.cycle_len
+
     def start(self) -> None:
         """Start the solver thread; then feed it with ``push`` and read ``latest``."""
         self._core.start()
