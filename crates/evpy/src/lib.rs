@@ -8,6 +8,7 @@ mod errors;
 mod field;
 mod io;
 mod model;
+mod pose;
 mod sim;
 mod simcam;
 mod tracker;
