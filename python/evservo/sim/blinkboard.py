@@ -81,7 +81,7 @@ class BlinkingScreen:
         )  # fmt: skip
         self._started = False
 
-    def blink(self, T_c_board: np.ndarray, t_us: int, on_us: int = 20_000, switch_us: int = 1000) -> np.ndarray:
+    def blink(self, T_c_board: np.ndarray, t_us: int, on_us: int = 20_000, switch_us: int = 300) -> np.ndarray:
         """Events (EVENT_CD) of one blink starting at ``t_us``: the screen switches on over
         ``switch_us``, stays on for ``on_us`` and switches off over ``switch_us``."""
         if not self._started:
