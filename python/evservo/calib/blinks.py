@@ -5,7 +5,8 @@ sensor within a millisecond or so: a sharp peak of the event rate over whatever 
 camera's motion and the sensor's noise produce around it. The rate is counted in ``bin_us`` bins;
 a bin is *hot* when it holds more than ``peak_factor`` times the local rate (the median of the bins
 within ±``local_us``) plus a floor of ``min_rate`` events per pixel per second; a blink is a run of
-hot bins grown over neighbours above half that threshold. The image of a blink counts every event
+hot bins grown over neighbours above half that threshold, and no longer than ``max_us`` (a screen
+switches within a few milliseconds; a longer run is the camera starting to move). The image of a blink counts every event
 (both polarities) of its run per pixel.
 """
 
@@ -34,6 +35,7 @@ class BlinkParams:
     min_rate: float = 0.05
     #: Fewest events of a blink, as a fraction of the sensor's pixels.
     min_events_fraction: float = 0.005
+    max_us: int = 20_000
 
 
 @dataclass
@@ -89,7 +91,8 @@ def blink_windows(stream: Stream, n_pixels: int, params: BlinkParams = BlinkPara
         b = k
         while b + 1 < len(counts) and warm[b + 1]:
             b += 1
-        if counts[a : b + 1].sum() >= params.min_events_fraction * n_pixels:
+        short = (b + 1 - a) * params.bin_us <= params.max_us
+        if short and counts[a : b + 1].sum() >= params.min_events_fraction * n_pixels:
             windows.append((t0 + a * params.bin_us, t0 + (b + 1) * params.bin_us))
         k = b + 1
     return windows
