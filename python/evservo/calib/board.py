@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["Board", "detect_corners", "parse_board"]
+__all__ = ["Board", "BoardFind", "find_board", "parse_board"]
 
 
 @dataclass(frozen=True)
@@ -112,20 +112,70 @@ def _canonical(grid: np.ndarray, img: np.ndarray, board: Board) -> np.ndarray:
     return grid
 
 
-def detect_corners(counts: np.ndarray, board: Board) -> np.ndarray | None:
+def _extends_beyond(grid: np.ndarray, img: np.ndarray) -> bool:
+    """True when lit squares continue past the detected corners: the squares one and a half squares
+    beyond the outer corner lines (past the board's outer squares, in its quiet zone) are lit on some
+    side. That is a larger board than asked for, of which the detector found a part."""
+    rows, cols = grid.shape[:2]
+    j, i = np.mgrid[0:rows, 0:cols]
+    H, _ = cv2.findHomography(np.stack([i.ravel(), j.ravel()], 1).astype(np.float32), grid.reshape(-1, 2))
+    if H is None:
+        return False
+
+    def level(points: np.ndarray) -> np.ndarray:
+        """Mean gray around each grid point (a 3×3 pattern 0.2 squares apart); NaN off the image."""
+        offsets = np.array([(a, b) for a in (-0.2, 0, 0.2) for b in (-0.2, 0, 0.2)])
+        pts = (points[:, None, :] + offsets[None]).reshape(-1, 1, 2).astype(np.float32)
+        xy = cv2.perspectiveTransform(pts, H).reshape(len(points), len(offsets), 2)
+        x, y = np.round(xy[..., 0]).astype(int), np.round(xy[..., 1]).astype(int)
+        inside = ((x >= 0) & (x < img.shape[1]) & (y >= 0) & (y < img.shape[0])).all(axis=1)
+        out = np.full(len(points), np.nan)
+        out[inside] = img[y[inside].clip(0, img.shape[0] - 1), x[inside].clip(0, img.shape[1] - 1)].mean(axis=1)
+        return out
+
+    centres = np.stack([i[:-1, :-1].ravel() + 0.5, j[:-1, :-1].ravel() + 0.5], 1)
+    inner = level(centres)
+    lit = ((i[:-1, :-1] + j[:-1, :-1]) % 2 == 0).ravel()
+    threshold = 0.5 * (np.nanmean(inner[lit]) + np.nanmean(inner[~lit]))
+    along_i, along_j = np.arange(cols - 1) + 0.5, np.arange(rows - 1) + 0.5
+    sides = [
+        np.stack([np.full_like(along_j, -1.5), along_j], 1),
+        np.stack([np.full_like(along_j, cols + 0.5), along_j], 1),
+        np.stack([along_i, np.full_like(along_i, -1.5)], 1),
+        np.stack([along_i, np.full_like(along_i, rows + 0.5)], 1),
+    ]
+    for side in sides:
+        values = level(side)
+        values = values[np.isfinite(values)]
+        if len(values) >= 2 and np.mean(values < threshold) >= 0.3:
+            return True
+    return False
+
+
+@dataclass
+class BoardFind:
+    """What :func:`find_board` saw: the corners (None unless the whole board was found) and whether a
+    board with more squares than asked for was in view."""
+
+    corners: np.ndarray | None
+    larger: bool = False
+
+
+def find_board(counts: np.ndarray, board: Board) -> BoardFind:
     """The board's inner corners in an event-count image, (rows·cols, 2) float32 pixels in the board
-    frame's order, refined to sub-pixel on the event image; None unless the whole board is found."""
+    frame's order, refined to sub-pixel on the event image; no corners unless the whole board is found
+    (OpenCV's detector), and none when the pattern continues past them (a larger board)."""
     img = normalised_image(counts)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
     found, corners = cv2.findChessboardCorners(img, board.size, flags=flags)
-    if not found:
-        found, corners = cv2.findChessboardCornersSB(img, board.size, flags=cv2.CALIB_CB_EXHAUSTIVE)
     if not found or corners is None or len(corners) != board.n_corners:
-        return None
+        return BoardFind(None)
     grid = corners.reshape(board.rows, board.cols, 2).astype(np.float32)
+    if _extends_beyond(grid, img):
+        return BoardFind(None, larger=True)
     win = _subpix_window(grid)
     smooth = cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.0)
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
     refined = cv2.cornerSubPix(smooth, grid.reshape(-1, 1, 2).copy(), (win, win), (-1, -1), criteria)
     grid = _canonical(refined.reshape(board.rows, board.cols, 2), img, board)
-    return np.ascontiguousarray(grid.reshape(-1, 2), dtype=np.float32)
+    return BoardFind(np.ascontiguousarray(grid.reshape(-1, 2), dtype=np.float32))

@@ -15,7 +15,7 @@ import numpy as np
 
 from evservo import io as evio
 from evservo.calib.blinks import BlinkParams, Stream, iter_blinks
-from evservo.calib.board import Board, detect_corners
+from evservo.calib.board import Board, find_board
 
 __all__ = ["View", "ViewScan", "scan_events", "scan_recording"]
 
@@ -48,6 +48,8 @@ class ViewScan:
     n_blinks: int
     n_detected: int
     views: list[View] = field(default_factory=list)
+    #: Blinks that showed a board with more squares than asked for.
+    n_larger: int = 0
 
 
 def _group(detections: list[tuple[int, int, np.ndarray]], agree_px: float, max_gap_us: int) -> list[View]:
@@ -72,13 +74,15 @@ def scan_events(
     agree_px: float = 3.0, max_gap_us: int = 1_000_000,
 ) -> ViewScan:  # fmt: skip
     """Split a stream into blinks, find the whole board in each and group the detections into views."""
-    detections, n_blinks = [], 0
+    detections, n_blinks, n_larger = [], 0, 0
     for blink in iter_blinks(stream, width, height, params):
         n_blinks += 1
-        corners = detect_corners(blink.image, board)
-        if corners is not None:
-            detections.append((blink.t_start_us, blink.t_end_us, corners))
-    return ViewScan(width, height, n_blinks, len(detections), _group(detections, agree_px, max_gap_us))
+        found = find_board(blink.image, board)
+        n_larger += found.larger
+        if found.corners is not None:
+            detections.append((blink.t_start_us, blink.t_end_us, found.corners))
+    views = _group(detections, agree_px, max_gap_us)
+    return ViewScan(width, height, n_blinks, len(detections), views, n_larger)
 
 
 def scan_recording(path: str | Path, board: Board, params: BlinkParams = BlinkParams()) -> ViewScan:

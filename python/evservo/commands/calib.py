@@ -29,8 +29,9 @@ def _scan(recording: str, board):
     if scan.n_blinks == 0:
         raise ValueError(f"{recording}: no blinks found (the event rate never peaks); the screen must blink the board")
     if not scan.views:
+        larger = f" ({scan.n_larger} showed a board with more squares)" if scan.n_larger else ""
         raise ValueError(
-            f"{recording}: the whole {board} board was found in none of the {scan.n_blinks} blinks; check --board "
+            f"{recording}: the whole {board} board was found in none of the {scan.n_blinks} blinks{larger}; check --board "
             "(inner corners, COLSxROWS) and that the whole board is in view"
         )
     return scan

@@ -1,0 +1,264 @@
+"""`evservo calib`: intrinsics and hand-eye from a blinking checkerboard seen by the rendered event camera.
+
+The recordings are rendered once per test session (a few milliseconds around each blink) from camera
+poses generated directly (the simulated Panda does not carry the camera here: the flange poses follow
+from the camera poses, a known T_e_c and a board fixed in the base), so the ground truth is exact.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from evservo import _evcore, geometry
+from evservo import io as evio
+from evservo.calib.blinks import blink_windows
+from evservo.calib.board import Board
+from evservo.calib.capture import capture
+from evservo.calib.handeye import match_views, read_poses, write_poses
+from evservo.calib.views import scan_recording
+from evservo.cli import main
+from evservo.control import CartesianLimits
+from evservo.robots.config import load_camera_section, load_rig_config
+from evservo.robots.kinematic import KinematicArm
+from evservo.sim.blinkboard import BlinkingScreen, look_at_board, record_views, spread_view_poses
+
+BOARD = Board(9, 6, 0.025)
+#: A wide-angle lens with much stronger barrel distortion than the IMX636's.
+STRONG = _evcore.Camera(640, 480, 520.0, 524.0, 323.5, 236.0, (-0.42, 0.20, 0.0, 0.0, 0.0))
+#: Ground truth of the hand-eye set-up: camera on the flange, board fixed in the robot base.
+T_E_C = geometry.pose((0.012, 0.071, 0.043), (0.02, -0.03, 1.55))
+T_B_BOARD = geometry.pose((0.55, 0.05, 0.0), (np.pi, 0.0, 0.3))
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _flange_poses(T_c_board: list[np.ndarray]) -> np.ndarray:
+    return np.array([T_B_BOARD @ geometry.inv(T) @ geometry.inv(T_E_C) for T in T_c_board])
+
+
+def _record(tmp_path_factory, name: str, camera, n: int, distance_m, seed: int) -> dict:
+    path = tmp_path_factory.mktemp("calib") / f"{name}.h5"
+    poses = spread_view_poses(camera, BOARD, n, seed=seed, distance_m=distance_m)
+    mids = record_views(path, camera, BOARD, poses)
+    csv = path.with_suffix(".csv")
+    write_poses(csv, mids * 1e-6, _flange_poses(poses))
+    return dict(path=path, camera=camera, poses_csv=csv, mids=mids)
+
+
+@pytest.fixture(scope="module")
+def imx_rec(tmp_path_factory):
+    return _record(tmp_path_factory, "imx636", _evcore.Camera.imx636(), 15, (0.35, 0.55), seed=2)
+
+
+@pytest.fixture(scope="module")
+def strong_rec(tmp_path_factory):
+    return _record(tmp_path_factory, "strong", STRONG, 15, (0.25, 0.45), seed=3)
+
+
+def _run_json(args: list[str], capsys) -> dict:
+    assert main(args) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def _fails(args: list[str], capsys) -> str:
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("evservo: error: ")
+    return err
+
+
+def _intrinsics(rec: dict, tmp_path: Path, capsys) -> tuple[dict, Path]:
+    cam_file = tmp_path / "cam.yaml"
+    args = ["calib", "intrinsics", str(rec["path"]), "--board", "9x6", "--square", "0.025", "--json"]
+    return _run_json([*args, "--out", str(cam_file)], capsys), cam_file
+
+
+def _assert_intrinsics_match(got: dict, cam) -> None:
+    assert abs(got["fx"] / cam.fx - 1) < 0.005 and abs(got["fy"] / cam.fy - 1) < 0.005
+    assert abs(got["cx"] - cam.cx) < 2.0 and abs(got["cy"] - cam.cy) < 2.0
+    assert abs(got["dist"][0] - cam.dist[0]) < 0.01
+    assert got["dist"][2:] == [0.0, 0.0, 0.0]  # k1k2: no tangential terms, no k3
+
+
+def test_intrinsics_of_the_imx636_from_blinks(imx_rec, tmp_path, capsys):
+    got, cam_file = _intrinsics(imx_rec, tmp_path, capsys)
+    _assert_intrinsics_match(got, imx_rec["camera"])
+    assert got["views_used"] == 15 and got["rms_px"] < 0.5
+    # The camera file reads back through the rig config's reader with the printed values.
+    cam = load_camera_section(cam_file)
+    assert (cam.width, cam.height) == (1280, 720)
+    assert np.allclose([cam.fx, cam.fy, cam.cx, cam.cy, *cam.dist], [got[k] for k in ("fx", "fy", "cx", "cy")] + got["dist"])
+
+
+def test_intrinsics_of_a_strongly_distorting_lens(strong_rec, tmp_path, capsys):
+    got, _ = _intrinsics(strong_rec, tmp_path, capsys)
+    _assert_intrinsics_match(got, STRONG)
+    assert abs(got["dist"][1] - STRONG.dist[1]) < 0.05
+
+
+def test_hand_eye_recovers_T_e_c_and_updates_the_rig_file(imx_rec, tmp_path, capsys):
+    _, cam_file = _intrinsics(imx_rec, tmp_path, capsys)  # the chain a lab runs: calibrated, not true, intrinsics
+    rig = tmp_path / "rig.yaml"
+    shutil.copy(REPO / "examples" / "rig.yaml", rig)
+    args = ["calib", "hand-eye", str(imx_rec["path"]), "--poses", str(imx_rec["poses_csv"]), "--board", "9x6"]
+    got = _run_json([*args, "--square", "0.025", "--camera", str(cam_file), "--out", str(rig), "--json"], capsys)
+    T = np.array(got["T_e_c"])
+    assert geometry.translation_error_m(T, T_E_C) < 1e-3
+    assert np.degrees(geometry.rotation_error_rad(T, T_E_C)) < 0.1
+    assert got["views_used"] == 15
+    assert 0 <= got["rot_spread_deg"] < 1.0 and 0 <= got["trans_spread_mm"] < 10.0
+    # servo --robot --config reads the merged file: the new hand-eye and camera, the old limits.
+    cfg = load_rig_config(rig)
+    assert np.allclose(cfg.T_e_c, T, atol=1e-9)
+    assert cfg.camera.fx == load_camera_section(cam_file).fx
+    assert cfg.limits.max_lin_vel == 0.25 and cfg.model == "box"
+
+
+def test_wrong_board_size_is_a_clear_error(strong_rec, capsys):
+    err = _fails(["calib", "intrinsics", str(strong_rec["path"]), "--board", "8x6", "--square", "0.025"], capsys)
+    assert "8x6 board was found in none of the 30 blinks" in err and "--board" in err
+
+
+@pytest.fixture(scope="module")
+def strong_cam_file(tmp_path_factory):
+    from evservo.calib.camfile import write_camera_file
+
+    path = tmp_path_factory.mktemp("cam") / "cam.yaml"
+    write_camera_file(path, STRONG)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda t, T: (t[:-1], T[:-1]), "has 14 pose(s) but the recording shows the whole board in 15"),
+        (lambda t, T: (t + 2.0, T), "s from the nearest view"),
+    ],
+    ids=["number", "time"],
+)
+def test_poses_that_do_not_match_the_views_are_an_error(strong_rec, strong_cam_file, tmp_path, capsys, edit, message):
+    t, T = edit(*read_poses(strong_rec["poses_csv"]))
+    poses = tmp_path / "poses.csv"
+    write_poses(poses, t, T)
+    args = ["calib", "hand-eye", str(strong_rec["path"]), "--poses", str(poses), "--board", "9x6", "--square", "0.025"]
+    err = _fails([*args, "--camera", str(strong_cam_file)], capsys)
+    assert message in err
+
+
+def test_too_few_views_is_an_error(tmp_path, capsys):
+    rec = tmp_path / "few.h5"
+    record_views(rec, STRONG, BOARD, spread_view_poses(STRONG, BOARD, 3, seed=4, distance_m=(0.25, 0.45)))
+    err = _fails(["calib", "intrinsics", str(rec), "--board", "9x6", "--square", "0.025"], capsys)
+    assert "only 3 view(s) show the whole 9x6 board" in err
+
+
+def test_board_half_outside_the_image_is_an_error(tmp_path, capsys):
+    # The board's centre on the right edge of the image: half of it is outside in every view.
+    z = 0.35
+    centre = np.array([(STRONG.width - 1 - STRONG.cx) / STRONG.fx * z, 0.0, z])
+    poses = [look_at_board(BOARD, centre + [0, dy, 0], (0.1, 0.2 * s, 0.0)) for dy, s in ((-0.03, 1), (0.03, -1))]
+    rec = tmp_path / "half.h5"
+    record_views(rec, STRONG, BOARD, poses)
+    err = _fails(["calib", "intrinsics", str(rec), "--board", "9x6", "--square", "0.025"], capsys)
+    assert "found in none of the 4 blinks" in err
+
+
+def test_a_recording_without_blinks_is_an_error(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    n = 20_000
+    ev = np.zeros(n, evio.EVENT_CD)
+    ev["x"], ev["y"] = rng.integers(0, 64, n), rng.integers(0, 48, n)
+    ev["t"] = np.sort(rng.integers(0, 2_000_000, n))
+    rec = tmp_path / "noise.npz"
+    evio.write_events(rec, ev, 64, 48)
+    err = _fails(["calib", "intrinsics", str(rec), "--board", "9x6", "--square", "0.025"], capsys)
+    assert "no blinks found" in err
+
+
+@pytest.mark.parametrize("board", ["9", "9x", "axb", "1x6"])
+def test_bad_board_option_is_an_error(board, tmp_path, capsys):
+    _fails(["calib", "intrinsics", str(tmp_path / "missing.h5"), "--board", board, "--square", "0.025"], capsys)
+
+
+def test_blinks_are_the_sharp_peaks_not_noise_or_motion():
+    """Noise at 1 kev/s, a stretch of camera motion at 200 kev/s, and three blinks of 3000 events in
+    0.6 ms: exactly the three blinks are found, each window holding its burst."""
+    rng = np.random.default_rng(1)
+    w, h = 160, 120
+    parts = [rng.integers(0, 3_000_000, 3000)]  # noise
+    parts.append(rng.integers(1_000_000, 1_400_000, 80_000))  # motion from 1.0 to 1.4 s
+    blinks = [500_000, 1_200_000, 2_500_000]  # one of them during the motion
+    parts += [t + rng.integers(0, 600, 3000) for t in blinks]
+    t = np.sort(np.concatenate(parts))
+    ev = np.zeros(len(t), evio.EVENT_CD)
+    ev["t"] = t
+    ev["x"], ev["y"] = rng.integers(0, w, len(t)), rng.integers(0, h, len(t))
+    windows = blink_windows(lambda: [ev], w * h)
+    assert len(windows) == 3
+    for (a, b), t0 in zip(windows, blinks, strict=True):
+        assert a <= t0 and b >= t0 + 600 and b - a <= 3000
+
+
+class _LiveScreenCamera:
+    """A fake live camera: renders one blink of the screen every 40 ms of wall time, seen from where
+    the arm holds the camera now (board fixed in the world), stamped with wall-clock microseconds."""
+
+    def __init__(self, camera, arm: KinematicArm, T_w_board: np.ndarray) -> None:
+        self.width, self.height = camera.width, camera.height
+        self._screen = BlinkingScreen(camera, BOARD, seed=5)
+        self._arm, self._T_w_board = arm, T_w_board
+        self._closed = threading.Event()
+
+    def __iter__(self):
+        start = time.monotonic()
+        t_us = 1000
+        while not self._closed.is_set():
+            T_c_board = geometry.inv(self._arm.T_w_c()) @ self._T_w_board
+            yield self._screen.blink(T_c_board, t_us)
+            t_us += 40_000
+            time.sleep(max(0.0, start + t_us * 1e-6 - time.monotonic()))
+
+    def close(self) -> None:
+        self._closed.set()
+
+
+def test_capture_writes_views_and_poses_that_match(tmp_path):
+    """Capture with a kinematic stand-in arm moved between views and a fake live camera: every view is
+    kept, poses.csv holds the arm's flange poses, and the written recording's views match them."""
+    clock = [0.0]
+    camera = _evcore.Camera(320, 240, 260.0, 262.0, 160.5, 119.5, (-0.1, 0.0, 0.0, 0.0, 0.0))
+    arm = KinematicArm(
+        T_e_c=T_E_C, limits=CartesianLimits(2.0, 2.0, 100.0, 100.0), watchdog_s=30.0, clock=lambda: clock[0]
+    )
+    # The board 0.3 m in front of the camera's start pose, facing it.
+    T_w_board = arm.T_w_c() @ look_at_board(BOARD, (0.0, 0.0, 0.3), (0.0, 0.0, 0.0))
+    moves = iter([(0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (0.02, 0, 0, 0, 0.12, 0), (-0.03, 0.02, 0, 0.1, 0, 0.05)])
+    answers = []
+
+    def ask(prompt: str) -> str:
+        v = next(moves, None)
+        if v is None:
+            return "q"
+        arm.command_twist(np.array(v), 1.0)  # held for one second of the arm's clock, then stopped
+        clock[0] += 1.0
+        arm.stop()
+        answers.append(arm.T_w_e())
+        return ""
+
+    source = _LiveScreenCamera(camera, arm, T_w_board)
+    with arm:
+        result = capture(source, arm, BOARD, 5, tmp_path / "calib.h5", tmp_path / "poses.csv", hold_s=0.3, ask=ask,
+                         say=lambda _: None)  # fmt: skip
+    assert len(result.t_s) == 3
+    t_s, T_b_e = read_poses(tmp_path / "poses.csv")
+    assert np.allclose(T_b_e, np.array(answers), atol=1e-8)
+    assert not np.allclose(T_b_e[0], T_b_e[1])
+    scan = scan_recording(tmp_path / "calib.h5", BOARD)
+    assert len(scan.views) == 3 and all(v.n_blinks >= 3 for v in scan.views)
+    assert match_views(scan.views, t_s, max_dt_s=0.01) == [0, 1, 2]
