@@ -6,8 +6,8 @@ camera's motion and the sensor's noise produce around it. The rate is counted in
 a bin is *hot* when it holds more than ``peak_factor`` times the local rate (the median of the bins
 within ±``local_us``) plus a floor of ``min_rate`` events per pixel per second; a blink is a run of
 hot bins grown over neighbours above half that threshold, and no longer than ``max_us`` (a screen
-switches within a few milliseconds; a longer run is the camera starting to move). The image of a blink counts every event
-(both polarities) of its run per pixel.
+switches within a few milliseconds; a longer run is the camera starting to move). The image of a
+blink counts every event (both polarities) of its run per pixel.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import median_filter
 
-__all__ = ["Blink", "BlinkParams", "blink_windows", "iter_blinks"]
+__all__ = ["DEFAULT_PARAMS", "Blink", "BlinkParams", "blink_windows", "iter_blinks"]
 
 #: A factory of the stream: each call iterates again over time-ordered EVENT_CD slices.
 Stream = Callable[[], Iterable[np.ndarray]]
@@ -36,6 +36,9 @@ class BlinkParams:
     #: Fewest events of a blink, as a fraction of the sensor's pixels.
     min_events_fraction: float = 0.005
     max_us: int = 20_000
+
+
+DEFAULT_PARAMS = BlinkParams()
 
 
 @dataclass
@@ -67,7 +70,7 @@ def _rate_histogram(stream: Stream, bin_us: int) -> tuple[int, np.ndarray]:
     return (0 if t0 is None else t0), counts
 
 
-def blink_windows(stream: Stream, n_pixels: int, params: BlinkParams = BlinkParams()) -> list[tuple[int, int]]:
+def blink_windows(stream: Stream, n_pixels: int, params: BlinkParams = DEFAULT_PARAMS) -> list[tuple[int, int]]:
     """The [start, end) times (µs) of the blinks in the stream (see the module docstring)."""
     t0, counts = _rate_histogram(stream, params.bin_us)
     if not len(counts):
@@ -98,9 +101,7 @@ def blink_windows(stream: Stream, n_pixels: int, params: BlinkParams = BlinkPara
     return windows
 
 
-def iter_blinks(
-    stream: Stream, width: int, height: int, params: BlinkParams = BlinkParams()
-) -> Iterator[Blink]:
+def iter_blinks(stream: Stream, width: int, height: int, params: BlinkParams = DEFAULT_PARAMS) -> Iterator[Blink]:
     """The stream's blinks in time order, each with its event-count image (two passes over the stream)."""
     windows = blink_windows(stream, width * height, params)
     if not windows:

@@ -4,8 +4,9 @@ The screen shows the board blinking the whole time (any player looping a board i
 image, 2–5 blinks per second). For each view the user moves the arm (hand guiding, the teach pendant:
 the arm is opened read-only) so that the camera sees the whole board from a new angle, lets it stop
 and confirms. :func:`capture` then records ``hold_s`` of events, reads the flange pose before and
-after, and keeps the view only when the arm stayed still and the whole board was found in the blinks
-of that stretch; otherwise it says why and asks again. The events of the kept stretches are written
+after, and keeps the view only when the arm stayed still and the whole board was found, in the same
+place, in most blinks of that stretch (earlier blinks, seen while the camera still settled, are cut
+off); otherwise it says why and asks again. The events of the kept stretches are written
 as one recording, and their poses as ``poses.csv`` (:mod:`evservo.calib.handeye`) with each pose's
 time the middle of its view's blinks, on the camera's clock.
 """
@@ -129,15 +130,19 @@ def capture(
                 say("  no events from the camera; is it connected and is the screen blinking?")
                 continue
             scan = scan_events(lambda ev=events: [ev], source.width, source.height, board)
-            if len(scan.views) != 1:
+            # The still view is the last one; blinks before it were seen while the camera still moved
+            # and are cut off, so the recording holds one view per pose.
+            view = scan.views[-1] if scan.views else None
+            if view is None or (len(scan.views) > 1 and view.n_blinks < max(v.n_blinks for v in scan.views)):
                 why = (
                     f"the whole {board} board was not found in {scan.n_blinks} blink(s)"
-                    if not scan.views
+                    if view is None
                     else "the board moved between blinks"
                 )
                 say(f"  {why}; adjust the view and try again")
                 continue
-            view = scan.views[0]
+            if len(scan.views) > 1:
+                events = events[events["t"] >= (scan.views[-2].t_end_us + view.t_start_us) // 2]
             segments.append(events)
             times.append(view.t_mid_us * 1e-6)
             poses.append(T0)

@@ -117,7 +117,10 @@ def match_views(views: list[View], t_s: np.ndarray, max_dt_s: float = 0.5) -> li
                 f"{max_dt_s} s): are the poses on the recording's clock?"
             )
         if i in out:
-            raise ValueError(f"poses {out.index(i) + 1} and {k + 1} both fall on the view at {views[i].t_mid_us * 1e-6:.3f} s")
+            raise ValueError(
+                f"poses {out.index(i) + 1} and {k + 1} both fall on the view at {views[i].t_mid_us * 1e-6:.3f} s: "
+                "the poses' times do not match the views' (are the poses on the recording's clock?)"
+            )
         out.append(i)
     return out
 
@@ -226,7 +229,9 @@ def calibrate_hand_eye(
         if np.all(np.isfinite(T)) and abs(np.linalg.det(R) - 1.0) < 1e-6:
             methods[name] = T
     if "park" not in methods:
-        raise ValueError("OpenCV's hand-eye solvers failed: are the poses varied enough (rotations about different axes)?")
+        raise ValueError(
+            "OpenCV's hand-eye solvers failed: are the poses varied enough (rotations about different axes)?"
+        )
     rot_spread, trans_spread = _spread(list(methods.values()))
     start = methods["park"]
     # The board in the base from each view with the starting T_e_c; their mean starts the refinement.

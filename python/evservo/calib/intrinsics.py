@@ -61,7 +61,9 @@ def _solve(views: list[View], board: Board, size: tuple[int, int], flags: int):
     obj = [board.object_points()] * len(views)
     img = [v.corners.reshape(-1, 1, 2) for v in views]
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    rms, K, dist, _, _, _, _, per_view = cv2.calibrateCameraExtended(obj, img, size, None, None, flags=flags, criteria=criteria)
+    rms, K, dist, _, _, _, _, per_view = cv2.calibrateCameraExtended(
+        obj, img, size, None, None, flags=flags, criteria=criteria
+    )
     return float(rms), K, dist.ravel(), per_view.ravel()
 
 

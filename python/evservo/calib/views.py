@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from evservo import io as evio
-from evservo.calib.blinks import BlinkParams, Stream, iter_blinks
+from evservo.calib.blinks import DEFAULT_PARAMS, BlinkParams, Stream, iter_blinks
 from evservo.calib.board import Board, find_board
 
 __all__ = ["View", "ViewScan", "scan_events", "scan_recording"]
@@ -70,7 +70,7 @@ def _group(detections: list[tuple[int, int, np.ndarray]], agree_px: float, max_g
 
 
 def scan_events(
-    stream: Stream, width: int, height: int, board: Board, params: BlinkParams = BlinkParams(),
+    stream: Stream, width: int, height: int, board: Board, params: BlinkParams = DEFAULT_PARAMS,
     agree_px: float = 3.0, max_gap_us: int = 1_000_000,
 ) -> ViewScan:  # fmt: skip
     """Split a stream into blinks, find the whole board in each and group the detections into views."""
@@ -85,7 +85,7 @@ def scan_events(
     return ViewScan(width, height, n_blinks, len(detections), views, n_larger)
 
 
-def scan_recording(path: str | Path, board: Board, params: BlinkParams = BlinkParams()) -> ViewScan:
+def scan_recording(path: str | Path, board: Board, params: BlinkParams = DEFAULT_PARAMS) -> ViewScan:
     """:func:`scan_events` over an event file (any format :mod:`evservo.io` reads), streamed twice."""
     meta = evio.info(path)
     return scan_events(

@@ -31,8 +31,8 @@ def _scan(recording: str, board):
     if not scan.views:
         larger = f" ({scan.n_larger} showed a board with more squares)" if scan.n_larger else ""
         raise ValueError(
-            f"{recording}: the whole {board} board was found in none of the {scan.n_blinks} blinks{larger}; check --board "
-            "(inner corners, COLSxROWS) and that the whole board is in view"
+            f"{recording}: the whole {board} board was found in none of the {scan.n_blinks} blinks{larger}; "
+            "check --board (inner corners, COLSxROWS) and that the whole board is in view"
         )
     return scan
 
@@ -46,7 +46,9 @@ def run_intrinsics(args: argparse.Namespace) -> int:
     scan = _scan(args.recording, board)
     result = calibrate_intrinsics(scan.views, board, scan.width, scan.height, args.model)
     log = sys.stderr if args.json else sys.stdout
-    print(f"{args.recording}: {scan.n_blinks} blinks, whole board in {scan.n_detected}, {len(scan.views)} views", file=log)
+    print(
+        f"{args.recording}: {scan.n_blinks} blinks, whole board in {scan.n_detected}, {len(scan.views)} views", file=log
+    )
     for i, (view, e) in enumerate(zip(scan.views, result.view_rms_px, strict=True)):
         state = "rejected (outlier)" if i in result.rejected else f"{e:.3f} px"
         print(f"  view {i + 1:2d} at {view.t_mid_us * 1e-6:8.3f} s, {view.n_blinks} blink(s): {state}", file=log)
@@ -76,7 +78,8 @@ def run_hand_eye(args: argparse.Namespace) -> int:
     scan = _scan(args.recording, board)
     if (camera.width, camera.height) != (scan.width, scan.height):
         raise ValueError(
-            f"{args.camera} is for a {camera.width}x{camera.height} sensor, the recording's is {scan.width}x{scan.height}"
+            f"{args.camera} is for a {camera.width}x{camera.height} sensor, "
+            f"the recording's is {scan.width}x{scan.height}"
         )
     order = match_views(scan.views, t_s, args.max_dt)
     result = calibrate_hand_eye([scan.views[i] for i in order], T_b_e, board, camera)
@@ -90,7 +93,9 @@ def run_hand_eye(args: argparse.Namespace) -> int:
         file=log,
     )
     if args.out:
-        existed = merge_rig_file(args.out, camera, result.T_e_c, f"{result.views_used} views, RMS {result.rms_px:.3f} px")
+        existed = merge_rig_file(
+            args.out, camera, result.T_e_c, f"{result.views_used} views, RMS {result.rms_px:.3f} px"
+        )
         print(f"{'updated' if existed else 'wrote'} {args.out}", file=log)
     if args.json:
         print(json.dumps(result.summary()))

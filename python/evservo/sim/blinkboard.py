@@ -54,8 +54,8 @@ def screen_mesh(board: Board, margin_squares: float = 1.0, bezel_squares: float 
     X, Y = np.meshgrid(x, y)
     k, j = np.floor(X / s) + 1, np.floor(Y / s) + 1  # square index: square (1, 1) spans [0, s]²
     on_board = (k >= 0) & (k <= board.cols) & (j >= 0) & (j <= board.rows)
-    in_screen = (X > lo[0] + bezel_squares * s) & (X < hi[0] - bezel_squares * s)
-    in_screen &= (Y > lo[1] + bezel_squares * s) & (Y < hi[1] - bezel_squares * s)
+    inset = np.minimum.reduce([X - lo[0], hi[0] - X, Y - lo[1], hi[1] - Y])  # distance to the screen's edge
+    in_screen = inset > bezel_squares * s
     image = np.full((h, w), BEZEL_SRGB, np.uint8)
     image[in_screen] = DARK_SRGB
     image[on_board & ((k + j) % 2 == 0)] = LIT_SRGB
@@ -146,7 +146,9 @@ def spread_view_poses(
     K = np.array([[camera.fx, 0, camera.cx], [0, camera.fy, camera.cy], [0, 0, 1]])
     dist = np.array(camera.dist, float)
     s = board.square_m
-    outline = np.array([[-s, -s, 0], [board.cols * s, -s, 0], [board.cols * s, board.rows * s, 0], [-s, board.rows * s, 0]])
+    outline = np.array(
+        [[-s, -s, 0], [board.cols * s, -s, 0], [board.cols * s, board.rows * s, 0], [-s, board.rows * s, 0]]
+    )
     poses: list[np.ndarray] = []
     while len(poses) < n:
         # Aim at a spot of a 3×3 grid of image regions in turn (corners, edges, centre), jittered.
