@@ -7,6 +7,8 @@ from the camera poses, a known T_e_c and a board fixed in the base), so the grou
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import shutil
 import threading
@@ -73,10 +75,19 @@ def _fails(args: list[str], capsys) -> str:
     return err
 
 
-def _intrinsics(rec: dict, tmp_path: Path, capsys) -> tuple[dict, Path]:
-    cam_file = tmp_path / "cam.yaml"
+def _intrinsics(rec: dict) -> tuple[dict, Path]:
+    """`calib intrinsics --json --out cam.yaml` on a recording: the printed JSON and the camera file."""
+    cam_file = rec["path"].with_name(rec["path"].stem + "-cam.yaml")
     args = ["calib", "intrinsics", str(rec["path"]), "--board", "9x6", "--square", "0.025", "--json"]
-    return _run_json([*args, "--out", str(cam_file)], capsys), cam_file
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        assert main([*args, "--out", str(cam_file)]) == 0
+    return json.loads(out.getvalue()), cam_file
+
+
+@pytest.fixture(scope="module")
+def imx_intrinsics(imx_rec):
+    return _intrinsics(imx_rec)
 
 
 def _assert_intrinsics_match(got: dict, cam) -> None:
@@ -86,8 +97,8 @@ def _assert_intrinsics_match(got: dict, cam) -> None:
     assert got["dist"][2:] == [0.0, 0.0, 0.0]  # k1k2: no tangential terms, no k3
 
 
-def test_intrinsics_of_the_imx636_from_blinks(imx_rec, tmp_path, capsys):
-    got, cam_file = _intrinsics(imx_rec, tmp_path, capsys)
+def test_intrinsics_of_the_imx636_from_blinks(imx_rec, imx_intrinsics):
+    got, cam_file = imx_intrinsics
     _assert_intrinsics_match(got, imx_rec["camera"])
     assert got["views_used"] == 15 and got["rms_px"] < 0.5
     # The camera file reads back through the rig config's reader with the printed values.
@@ -98,14 +109,14 @@ def test_intrinsics_of_the_imx636_from_blinks(imx_rec, tmp_path, capsys):
     )
 
 
-def test_intrinsics_of_a_strongly_distorting_lens(strong_rec, tmp_path, capsys):
-    got, _ = _intrinsics(strong_rec, tmp_path, capsys)
+def test_intrinsics_of_a_strongly_distorting_lens(strong_rec):
+    got, _ = _intrinsics(strong_rec)
     _assert_intrinsics_match(got, STRONG)
     assert abs(got["dist"][1] - STRONG.dist[1]) < 0.05
 
 
-def test_hand_eye_recovers_T_e_c_and_updates_the_rig_file(imx_rec, tmp_path, capsys):
-    _, cam_file = _intrinsics(imx_rec, tmp_path, capsys)  # the chain a lab runs: calibrated, not true, intrinsics
+def test_hand_eye_recovers_T_e_c_and_updates_the_rig_file(imx_rec, imx_intrinsics, tmp_path, capsys):
+    _, cam_file = imx_intrinsics  # the chain a lab runs: calibrated, not true, intrinsics
     rig = tmp_path / "rig.yaml"
     shutil.copy(REPO / "examples" / "rig.yaml", rig)
     args = ["calib", "hand-eye", str(imx_rec["path"]), "--poses", str(imx_rec["poses_csv"]), "--board", "9x6"]
