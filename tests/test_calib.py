@@ -1,8 +1,9 @@
 """`evservo calib`: intrinsics and hand-eye from a blinking checkerboard seen by the rendered event camera.
 
-The recordings are rendered once per test session (a few milliseconds around each blink) from camera
-poses generated directly (the simulated Panda does not carry the camera here: the flange poses follow
-from the camera poses, a known T_e_c and a board fixed in the base), so the ground truth is exact.
+The recordings are rendered once per module (four frames around each blink). The IMX636 views are
+carried by the simulated Panda (MuJoCo scene, camera on the flange at a known T_e_c, board fixed in the
+world, flange poses from forward kinematics); the wide-angle lens's views are camera poses generated
+directly, with the flange poses that a board fixed in the base implies.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from evservo.cli import main
 from evservo.control import CartesianLimits
 from evservo.robots.config import load_camera_section, load_rig_config
 from evservo.robots.kinematic import KinematicArm
-from evservo.sim.blinkboard import BlinkingScreen, look_at_board, record_views, spread_view_poses
+from evservo.sim.blinkboard import BlinkingScreen, look_at_board, panda_views, record_views, spread_view_poses
 
 BOARD = Board(9, 6, 0.025)
 #: A wide-angle lens with much stronger barrel distortion than the IMX636's.
@@ -44,23 +45,25 @@ def _flange_poses(T_c_board: list[np.ndarray]) -> np.ndarray:
     return np.array([T_B_BOARD @ geometry.inv(T) @ geometry.inv(T_E_C) for T in T_c_board])
 
 
-def _record(tmp_path_factory, name: str, camera, n: int, distance_m, seed: int) -> dict:
+def _record(tmp_path_factory, name: str, camera, T_c_board: list[np.ndarray], T_b_e: np.ndarray) -> dict:
     path = tmp_path_factory.mktemp("calib") / f"{name}.h5"
-    poses = spread_view_poses(camera, BOARD, n, seed=seed, distance_m=distance_m)
-    mids = record_views(path, camera, BOARD, poses)
+    mids = record_views(path, camera, BOARD, T_c_board)
     csv = path.with_suffix(".csv")
-    write_poses(csv, mids * 1e-6, _flange_poses(poses))
+    write_poses(csv, mids * 1e-6, T_b_e)
     return dict(path=path, camera=camera, poses_csv=csv, mids=mids)
 
 
 @pytest.fixture(scope="module")
 def imx_rec(tmp_path_factory):
-    return _record(tmp_path_factory, "imx636", _evcore.Camera.imx636(), 15, (0.35, 0.55), seed=2)
+    camera = _evcore.Camera.imx636()
+    T_c_board, T_b_e = panda_views(camera, BOARD, 15, T_E_C, seed=2)
+    return _record(tmp_path_factory, "imx636", camera, T_c_board, T_b_e)
 
 
 @pytest.fixture(scope="module")
 def strong_rec(tmp_path_factory):
-    return _record(tmp_path_factory, "strong", STRONG, 15, (0.25, 0.45), seed=3)
+    T_c_board = spread_view_poses(STRONG, BOARD, 15, seed=3, distance_m=(0.25, 0.45))
+    return _record(tmp_path_factory, "strong", STRONG, T_c_board, _flange_poses(T_c_board))
 
 
 def _run_json(args: list[str], capsys) -> dict:

@@ -15,7 +15,8 @@ sensor's noise still runs over the whole time line.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import itertools
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,15 @@ from evservo import io as evio
 from evservo.calib.board import Board
 from evservo.models import to_core_mesh
 
-__all__ = ["BlinkingScreen", "look_at_board", "record_views", "screen_mesh", "spread_view_poses"]
+__all__ = [
+    "BlinkingScreen",
+    "look_at_board",
+    "panda_views",
+    "record_views",
+    "screen_mesh",
+    "spread_view_poses",
+    "view_pose_candidates",
+]
 
 #: sRGB levels of the screen: lit squares, dark squares and margin (linear 0.0999, the background),
 #: bezel.
@@ -132,14 +141,15 @@ def look_at_board(board: Board, centre_c: np.ndarray, tilt_rad: Sequence[float])
     return T
 
 
-def spread_view_poses(
-    camera: _evcore.Camera, board: Board, n: int, seed: int = 0, distance_m: tuple[float, float] = (0.35, 0.55),
+def view_pose_candidates(
+    camera: _evcore.Camera, board: Board, seed: int = 0, distance_m: tuple[float, float] = (0.35, 0.55),
     max_tilt_rad: float = 0.6, margin_px: float = 20.0,
-) -> list[np.ndarray]:  # fmt: skip
-    """``n`` board poses ``T_c_board`` that a calibration would want: the board tilted up to
+) -> Iterator[np.ndarray]:  # fmt: skip
+    """Endless board poses ``T_c_board`` that a calibration would want: the board tilted up to
     ``max_tilt_rad`` about random axes, turned in-plane, at depths in ``distance_m``, its centre
-    spread over the image (corners included, where distortion shows), and always wholly in view
-    (every square's corner ``margin_px`` inside the image, through the camera's distortion)."""
+    aimed at a 3×3 grid of image regions in turn (corners included, where distortion shows), and
+    always wholly in view (every square's corner ``margin_px`` inside the image, through the
+    camera's distortion)."""
     import cv2
 
     rng = np.random.default_rng(seed)
@@ -149,10 +159,9 @@ def spread_view_poses(
     outline = np.array(
         [[-s, -s, 0], [board.cols * s, -s, 0], [board.cols * s, board.rows * s, 0], [-s, board.rows * s, 0]]
     )
-    poses: list[np.ndarray] = []
-    while len(poses) < n:
-        # Aim at a spot of a 3×3 grid of image regions in turn (corners, edges, centre), jittered.
-        g = len(poses) % 9
+    n = 0
+    while True:
+        g = n % 9
         u = (0.2 + 0.3 * (g % 3) + rng.uniform(-0.08, 0.08)) * camera.width
         v = (0.2 + 0.3 * (g // 3) + rng.uniform(-0.08, 0.08)) * camera.height
         z = rng.uniform(*distance_m)
@@ -170,5 +179,47 @@ def spread_view_poses(
         inside = (img[:, 0] > margin_px) & (img[:, 0] < camera.width - 1 - margin_px)
         inside &= (img[:, 1] > margin_px) & (img[:, 1] < camera.height - 1 - margin_px)
         if inside.all():
-            poses.append(T)
-    return poses
+            n += 1
+            yield T
+
+
+def spread_view_poses(
+    camera: _evcore.Camera, board: Board, n: int, seed: int = 0, distance_m: tuple[float, float] = (0.35, 0.55)
+) -> list[np.ndarray]:
+    """The first ``n`` of :func:`view_pose_candidates`."""
+    return list(itertools.islice(view_pose_candidates(camera, board, seed, distance_m), n))
+
+
+def panda_views(
+    camera: _evcore.Camera, board: Board, n: int, T_e_c: np.ndarray, seed: int = 0,
+    distance_m: tuple[float, float] = (0.35, 0.55),
+) -> tuple[list[np.ndarray], np.ndarray]:  # fmt: skip
+    """The simulated Panda (:mod:`evservo.sim.scene`) carries the camera, mounted at ``T_e_c`` on its
+    flange, to ``n`` views of a board fixed in the world, 0.45 m in front of the camera's start pose.
+    Views come from :func:`view_pose_candidates`; one the Panda cannot reach within its joint limits
+    (the scene's IK does not converge) is skipped. Returns the board poses the camera then has
+    (``T_c_board``, from MuJoCo's forward kinematics) and the flange poses in the Panda's base
+    (``T_b_e``, (n, 4, 4)), what the arm would report."""
+    import mujoco
+
+    from evservo.robots.sim_arm import pose_of
+    from evservo.sim.scene import DualArmScene, SceneConfig
+
+    scene = DualArmScene(SceneConfig(T_e_c=T_e_c))
+    scene.reset_to_start(0.6)
+    T_w_board = scene.T_w_c() @ look_at_board(board, (0.0, 0.0, 0.45), (0.0, 0.0, 0.0))
+    base = mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_BODY, "panda_base")
+    T_b_w = geometry.inv(pose_of(scene.data.xpos[base], scene.data.xmat[base]))
+    q_start = scene.panda.joint_positions()
+    T_c_board, T_b_e = [], []
+    for T in view_pose_candidates(camera, board, seed, distance_m):
+        if len(T_c_board) == n:
+            break
+        try:
+            q = scene.panda.solve_ik(T_w_board @ geometry.inv(T) @ geometry.inv(T_e_c), q_start)
+        except RuntimeError:
+            continue
+        scene.panda.set_joint_positions(q)
+        T_c_board.append(geometry.inv(scene.T_w_c()) @ T_w_board)
+        T_b_e.append(T_b_w @ scene.panda.T_w_e())
+    return T_c_board, np.array(T_b_e)
