@@ -2,9 +2,10 @@
 "Calibration from events").
 
 For each camera (the IMX636 model; a 640×480 wide-angle lens with k1 = −0.42, k2 = 0.20) and seed:
-render ``--views`` views of a 9x6 board (25 mm squares) from camera poses spread over the image
-(``evservo.sim.blinkboard``), write the flange poses that a camera on a known ``T_e_c`` would have
-had with the board fixed in the base, then run ``evservo calib intrinsics`` (each distortion model)
+the simulated Panda carries the camera (on a known ``T_e_c``) to ``--views`` views of a 9x6 board
+(25 mm squares) fixed in the world (``evservo.sim.blinkboard.panda_views``: views spread over the
+image, IK in the MuJoCo scene, flange poses from forward kinematics); render the blinks and write the
+flange poses, then run ``evservo calib intrinsics`` (each distortion model)
 and ``evservo calib hand-eye`` (with the k1k2 intrinsics just calibrated) and compare with the truth.
 
     .venv/bin/python benches/calib_sim.py --views 15 --seeds 2 3 4 --out out/calib-bench
@@ -25,7 +26,7 @@ from evservo import _evcore, geometry
 from evservo.calib.board import Board
 from evservo.calib.handeye import write_poses
 from evservo.cli import main
-from evservo.sim.blinkboard import record_views, spread_view_poses
+from evservo.sim.blinkboard import panda_views, record_views
 
 BOARD = Board(9, 6, 0.025)
 CAMERAS = {
@@ -33,7 +34,6 @@ CAMERAS = {
     "wide": (_evcore.Camera(640, 480, 520.0, 524.0, 323.5, 236.0, (-0.42, 0.20, 0.0, 0.0, 0.0)), (0.25, 0.45)),
 }
 T_E_C = geometry.pose((0.012, 0.071, 0.043), (0.02, -0.03, 1.55))
-T_B_BOARD = geometry.pose((0.55, 0.05, 0.0), (np.pi, 0.0, 0.3))
 
 
 def _cli(args: list[str]) -> dict:
@@ -47,10 +47,9 @@ def run(name: str, seed: int, views: int, out: Path) -> list[str]:
     cam, depth = CAMERAS[name]
     rec = out / f"{name}-{seed}.h5"
     t = time.perf_counter()
-    poses = spread_view_poses(cam, BOARD, views, seed=seed, distance_m=depth)
+    poses, T_b_e = panda_views(cam, BOARD, views, T_E_C, seed=seed, distance_m=depth)
     mids = record_views(rec, cam, BOARD, poses, seed=seed)
     render_s = time.perf_counter() - t
-    T_b_e = np.array([T_B_BOARD @ geometry.inv(T) @ geometry.inv(T_E_C) for T in poses])
     write_poses(rec.with_suffix(".csv"), mids * 1e-6, T_b_e)
     board = ["--board", str(BOARD), "--square", str(BOARD.square_m)]
     rows = []

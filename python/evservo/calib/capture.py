@@ -108,10 +108,13 @@ def capture(
     recorder = _Recorder(source)
     try:
         while len(poses) < n_views:
-            answer = ask(
-                f"view {len(poses) + 1}/{n_views}: move the camera so it sees the whole blinking board from a new "
-                "angle, let the arm stop, then press Enter (q to finish) "
-            )
+            try:
+                answer = ask(
+                    f"view {len(poses) + 1}/{n_views}: move the camera so it sees the whole blinking board from a new "
+                    "angle, let the arm stop, then press Enter (q to finish) "
+                )
+            except EOFError:  # input closed: finish as with q
+                answer = "q"
             if answer.strip().lower() == "q":
                 break
             T0 = arm.T_w_e()

@@ -73,6 +73,8 @@ def run_hand_eye(args: argparse.Namespace) -> int:
 
     board = _board(args)
     _check_out(args.out)
+    if not args.max_dt > 0:
+        raise ValueError(f"--max-dt must be > 0 s, got {args.max_dt}")
     camera = load_camera_section(args.camera)
     t_s, T_b_e = read_poses(args.poses)
     scan = _scan(args.recording, board)
@@ -102,11 +104,8 @@ def run_hand_eye(args: argparse.Namespace) -> int:
     return 0
 
 
-def _open_arm_read_only(spec: str):
-    """The arm named by ``--robot``, opened read-only: capture only reads its poses."""
-    from evservo.commands.servo_real import parse_robot
-
-    robot = parse_robot(spec)
+def _open_arm_read_only(robot):
+    """The arm of a parsed ``--robot``, opened read-only: capture only reads its poses."""
     try:
         if robot.kind == "sim":
             from evservo.robots.kinematic import KinematicArm
@@ -126,15 +125,23 @@ def _open_arm_read_only(spec: str):
 def run_capture(args: argparse.Namespace) -> int:
     from evservo.calib.capture import capture
     from evservo.cameras import open_source
+    from evservo.commands.servo_real import parse_robot
 
     board = _board(args)
+    robot = parse_robot(args.robot)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    if not out.parent.is_dir():
+        raise FileNotFoundError(f"output directory does not exist: {out.parent}")
     try:
         source = open_source(args.camera)
     except ImportError as err:
         raise RuntimeError(str(err)) from err
-    arm = _open_arm_read_only(args.robot)
+    try:
+        arm = _open_arm_read_only(robot)
+    except BaseException:
+        source.close()
+        raise
+    out.mkdir(exist_ok=True)
     try:
         result = capture(source, arm, board, args.views, out / "calib.h5", out / "poses.csv", hold_s=args.hold)
     finally:
