@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,8 +27,10 @@ from evservo import io as evio
 from evservo.calib.board import Board
 from evservo.calib.handeye import write_poses
 from evservo.calib.views import scan_events
-from evservo.cameras import EventSource
-from evservo.robots.base import Arm
+
+if TYPE_CHECKING:  # typing only: importing evservo.robots would load every arm's driver module
+    from evservo.cameras import EventSource
+    from evservo.robots.base import Arm
 
 __all__ = ["CaptureResult", "capture"]
 
