@@ -22,7 +22,7 @@ import pytest
 from evservo import _evcore, geometry
 from evservo import io as evio
 from evservo.calib.blinks import blink_windows
-from evservo.calib.board import Board
+from evservo.calib.board import Board, find_board
 from evservo.calib.capture import capture
 from evservo.calib.handeye import match_views, read_poses, write_poses
 from evservo.calib.views import scan_recording
@@ -281,3 +281,33 @@ def test_capture_writes_views_and_poses_that_match(tmp_path):
     scan = scan_recording(tmp_path / "calib.h5", BOARD)
     assert len(scan.views) == 3 and all(v.n_blinks >= 3 for v in scan.views)
     assert match_views(scan.views, t_s, max_dt_s=0.01) == [0, 1, 2]
+
+
+def _drawn_board(x0: int = 120, y0: int = 90, s: int = 36) -> tuple[np.ndarray, np.ndarray]:
+    """A count image of BOARD drawn axis-aligned (lit squares 5 events, the rest 0) and its inner
+    corners (pixel-centre coordinates) in the board frame's order."""
+    img = np.zeros((480, 640))
+    for k in range(BOARD.cols + 1):
+        for m in range(BOARD.rows + 1):
+            if (k + m) % 2 == 0:  # square (1, 1), after corner (0, 0), is lit
+                img[y0 + (m - 1) * s : y0 + m * s, x0 + (k - 1) * s : x0 + k * s] = 5
+    j, i = np.mgrid[0 : BOARD.rows, 0 : BOARD.cols]
+    corners = np.stack([x0 + i.ravel() * s - 0.5, y0 + j.ravel() * s - 0.5], axis=1)
+    return img, corners
+
+
+@pytest.mark.parametrize("turns", [0, 1, 2, 3])
+def test_corner_order_follows_the_board_not_the_image(turns):
+    """However the board is turned in the image, corner k is the same physical corner (the order a
+    board pose needs), found within a tenth of a pixel."""
+    img, truth = _drawn_board()
+    turned = np.rot90(img, turns).copy()
+    found = find_board(turned, BOARD).corners
+    assert found is not None
+    # Undo the turns: np.rot90 moves pixel (x, y) of an image W wide to (y, W - 1 - x).
+    p = found.astype(float)
+    h, w = turned.shape
+    for _ in range(turns):
+        p = np.stack([h - 1 - p[:, 1], p[:, 0]], axis=1)
+        h, w = w, h
+    assert np.abs(p - truth).max() < 0.1
