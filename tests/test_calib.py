@@ -56,7 +56,7 @@ def _record(tmp_path_factory, name: str, camera, T_c_board: list[np.ndarray], T_
 @pytest.fixture(scope="module")
 def imx_rec(tmp_path_factory):
     camera = _evcore.Camera.imx636()
-    T_c_board, T_b_e = panda_views(camera, BOARD, 15, T_E_C, seed=2)
+    T_c_board, T_b_e = panda_views(camera, BOARD, 20, T_E_C, seed=2)
     return _record(tmp_path_factory, "imx636", camera, T_c_board, T_b_e)
 
 
@@ -103,7 +103,7 @@ def _assert_intrinsics_match(got: dict, cam) -> None:
 def test_intrinsics_of_the_imx636_from_blinks(imx_rec, imx_intrinsics):
     got, cam_file = imx_intrinsics
     _assert_intrinsics_match(got, imx_rec["camera"])
-    assert got["views_used"] == 15 and got["rms_px"] < 0.5
+    assert got["views_used"] == 20 and got["rms_px"] < 0.5
     # The camera file reads back through the rig config's reader with the printed values.
     cam = load_camera_section(cam_file)
     assert (cam.width, cam.height) == (1280, 720)
@@ -127,7 +127,7 @@ def test_hand_eye_recovers_T_e_c_and_updates_the_rig_file(imx_rec, imx_intrinsic
     T = np.array(got["T_e_c"])
     assert geometry.translation_error_m(T, T_E_C) < 1e-3
     assert np.degrees(geometry.rotation_error_rad(T, T_E_C)) < 0.1
-    assert got["views_used"] == 15
+    assert got["views_used"] == 20
     assert 0 <= got["rot_spread_deg"] < 1.0 and 0 <= got["trans_spread_mm"] < 10.0
     # servo --robot --config reads the merged file: the new hand-eye and camera, the old limits.
     cfg = load_rig_config(rig)

@@ -67,19 +67,17 @@ def parse_board(text: str, square_m: float) -> Board:
 
 
 def normalised_image(counts: np.ndarray) -> np.ndarray:
-    """An event-count image as 8-bit gray for the detectors: blinking squares dark on a light ground.
+    """An event-count image as 8-bit gray: blinking squares dark on a light ground.
 
     Counts are clipped at the 99th percentile of the lit pixels (a few hot or edge pixels fire far more
-    than the rest), isolated noise events are removed by a 3×3 median, and the result is inverted so
-    that the lit squares play the dark squares of a printed board, with the unlit screen and the world
-    around as its light quiet zone.
+    than the rest) and inverted, so that the lit squares play the dark squares of a printed board, with
+    the unlit screen and the world around as its light quiet zone.
     """
     c = np.asarray(counts, dtype=np.float32)
     lit = c[c > 0]
     top = float(np.percentile(lit, 99)) if lit.size else 1.0
     img = np.clip(c / max(top, 1e-6), 0.0, 1.0)
-    img8 = np.round(255.0 * (1.0 - img)).astype(np.uint8)
-    return cv2.medianBlur(img8, 3)
+    return np.round(255.0 * (1.0 - img)).astype(np.uint8)
 
 
 def _subpix_window(grid: np.ndarray) -> int:
@@ -164,18 +162,22 @@ class BoardFind:
 def find_board(counts: np.ndarray, board: Board) -> BoardFind:
     """The board's inner corners in an event-count image, (rows·cols, 2) float32 pixels in the board
     frame's order, refined to sub-pixel on the event image; no corners unless the whole board is found
-    (OpenCV's detector), and none when the pattern continues past them (a larger board)."""
+    (OpenCV's detector), and none when the pattern continues past them (a larger board).
+
+    The detector sees the image with isolated noise events removed by a 3×3 median; the corners are
+    refined on the image itself, slightly smoothed (a median moves edges by fractions of a pixel)."""
     img = normalised_image(counts)
+    clean = cv2.medianBlur(img, 3)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-    found, corners = cv2.findChessboardCorners(img, board.size, flags=flags)
+    found, corners = cv2.findChessboardCorners(clean, board.size, flags=flags)
     if not found or corners is None or len(corners) != board.n_corners:
         return BoardFind(None)
     grid = corners.reshape(board.rows, board.cols, 2).astype(np.float32)
-    if _extends_beyond(grid, img):
+    if _extends_beyond(grid, clean):
         return BoardFind(None, larger=True)
     win = _subpix_window(grid)
     smooth = cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.0)
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
     refined = cv2.cornerSubPix(smooth, grid.reshape(-1, 1, 2).copy(), (win, win), (-1, -1), criteria)
-    grid = _canonical(refined.reshape(board.rows, board.cols, 2), img, board)
+    grid = _canonical(refined.reshape(board.rows, board.cols, 2), clean, board)
     return BoardFind(np.ascontiguousarray(grid.reshape(-1, 2), dtype=np.float32))
