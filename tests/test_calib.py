@@ -9,6 +9,7 @@ directly, with the flange poses that a board fixed in the base implies.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 import shutil
@@ -25,6 +26,7 @@ from evservo.calib.blinks import blink_windows
 from evservo.calib.board import Board, find_board
 from evservo.calib.capture import capture
 from evservo.calib.handeye import match_views, read_poses, write_poses
+from evservo.calib.intrinsics import calibrate_intrinsics
 from evservo.calib.views import scan_recording
 from evservo.cli import main
 from evservo.control import CartesianLimits
@@ -311,3 +313,37 @@ def test_corner_order_follows_the_board_not_the_image(turns):
         p = np.stack([h - 1 - p[:, 1], p[:, 0]], axis=1)
         h, w = w, h
     assert np.abs(p - truth).max() < 0.1
+
+
+@pytest.fixture(scope="module")
+def strong_scan(strong_rec):
+    return scan_recording(strong_rec["path"], BOARD)
+
+
+def test_distortion_models_estimate_what_they_say(strong_scan):
+    """On the wide lens (k1 −0.42, k2 0.20): k1 alone cannot fit (RMS more than doubles, k2 stays 0);
+    k1k2 fits with p1 = p2 = k3 = 0; full frees all five and fits no better than k1k2."""
+    fits = {m: calibrate_intrinsics(strong_scan.views, BOARD, 640, 480, m) for m in ("k1", "k1k2", "full")}
+    assert fits["k1"].camera.dist[1:] == (0.0, 0.0, 0.0, 0.0)
+    assert fits["k1k2"].camera.dist[2:] == (0.0, 0.0, 0.0)
+    assert all(v != 0.0 for v in fits["full"].camera.dist)
+    assert fits["k1"].rms_px > 2 * fits["k1k2"].rms_px
+    assert fits["full"].rms_px <= fits["k1k2"].rms_px + 1e-6
+    assert abs(fits["k1k2"].camera.dist[1] - 0.20) < 0.05
+
+
+def test_an_outlier_view_is_rejected(strong_scan):
+    """One view's corners pushed 3 px off (a smeared blink): it is dropped, the others kept, and the
+    camera is the same as without it."""
+    views = [dataclasses.replace(v, corners=v.corners.copy()) for v in strong_scan.views]
+    rng = np.random.default_rng(0)
+    views[4].corners += rng.normal(0.0, 3.0, views[4].corners.shape).astype(np.float32)
+    fit = calibrate_intrinsics(views, BOARD, 640, 480)
+    assert fit.rejected == [4] and len(fit.used) == len(views) - 1 and np.isnan(fit.view_rms_px[4])
+    clean = calibrate_intrinsics([v for i, v in enumerate(views) if i != 4], BOARD, 640, 480)
+    assert abs(fit.camera.fx - clean.camera.fx) < 1e-6 and fit.rms_px < 0.5
+
+
+def test_too_few_views_left_after_rejection_is_an_error(strong_scan):
+    with pytest.raises(ValueError, match="view\\(s\\) show the whole 9x6 board"):
+        calibrate_intrinsics(strong_scan.views[:5], BOARD, 640, 480)

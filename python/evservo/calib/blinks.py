@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import median_filter
 
-__all__ = ["DEFAULT_PARAMS", "Blink", "BlinkParams", "blink_windows", "iter_blinks"]
+__all__ = ["DEFAULT_PARAMS", "Blink", "BlinkParams", "Stream", "blink_windows", "iter_blinks"]
 
 #: A factory of the stream: each call iterates again over time-ordered EVENT_CD slices.
 Stream = Callable[[], Iterable[np.ndarray]]
