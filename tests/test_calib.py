@@ -28,9 +28,10 @@ from evservo.calib.capture import capture
 from evservo.calib.handeye import match_views, read_poses, write_poses
 from evservo.calib.intrinsics import calibrate_intrinsics
 from evservo.calib.views import scan_recording
+from evservo.camera_file import load_camera_file
 from evservo.cli import main
-from evservo.control import CartesianLimits
-from evservo.robots.config import load_camera_section, load_rig_config
+from evservo.limits import CartesianLimits
+from evservo.robots.config import load_rig_config
 from evservo.robots.kinematic import KinematicArm
 from evservo.sim.blinkboard import BlinkingScreen, look_at_board, panda_views, record_views, spread_view_poses
 
@@ -106,8 +107,8 @@ def test_intrinsics_of_the_imx636_from_blinks(imx_rec, imx_intrinsics):
     got, cam_file = imx_intrinsics
     _assert_intrinsics_match(got, imx_rec["camera"])
     assert got["views_used"] == 20 and got["rms_px"] < 0.5
-    # The camera file reads back through the rig config's reader with the printed values.
-    cam = load_camera_section(cam_file)
+    # The camera file reads back through the project's camera-file reader with the printed values.
+    cam = load_camera_file(cam_file)
     assert (cam.width, cam.height) == (1280, 720)
     assert np.allclose(
         [cam.fx, cam.fy, cam.cx, cam.cy, *cam.dist], [got[k] for k in ("fx", "fy", "cx", "cy")] + got["dist"]
@@ -134,7 +135,7 @@ def test_hand_eye_recovers_T_e_c_and_updates_the_rig_file(imx_rec, imx_intrinsic
     # servo --robot --config reads the merged file: the new hand-eye and camera, the old limits.
     cfg = load_rig_config(rig)
     assert np.allclose(cfg.T_e_c, T, atol=1e-9)
-    assert cfg.camera.fx == load_camera_section(cam_file).fx
+    assert cfg.camera.fx == load_camera_file(cam_file).fx
     assert cfg.limits.max_lin_vel == 0.25 and cfg.model == "box"
 
 

@@ -1,10 +1,9 @@
 """The files calibration writes: the camera file and the rig file's ``camera`` and ``hand_eye`` sections.
 
-Both use the rig config's layout (:mod:`evservo.robots.config`), so one reader serves them:
-
-* camera file (``evservo calib intrinsics --out cam.yaml``): a ``camera`` section only, keys
-  ``width``, ``height`` (pixels), ``fx``, ``fy``, ``cx``, ``cy`` (pixels) and ``distortion``
-  (k1, k2, p1, p2, k3; OpenCV order) — :func:`camera_section`.
+* camera file (``evservo calib intrinsics --out cam.yaml``): the project's one camera-file layout
+  (:mod:`evservo.camera_file`, its native keys ``width``, ``height``, ``fx``, ``fy``, ``cx``, ``cy``,
+  ``distortion`` k1 k2 p1 p2 k3), read by ``track --camera``, ``calib hand-eye --camera`` and, as its
+  ``camera:`` section, ``servo --config``.
 * rig file (``evservo calib hand-eye --out rig.yaml``): an existing rig config keeps its other
   sections and gets ``camera`` and ``hand_eye`` (``translation`` [m], ``quaternion`` [x, y, z, w]:
   ``T_e_c``) replaced; a new one holds only those two and needs a ``limits`` section, chosen by a
@@ -15,8 +14,6 @@ Files are written whole to a temporary name and renamed, so a failure never leav
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -24,16 +21,10 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from evservo import _evcore
+from evservo.camera_file import camera_to_mapping
+from evservo.outputs import write_text_atomic
 
-__all__ = ["camera_section", "hand_eye_section", "merge_rig_file", "write_camera_file"]
-
-
-def camera_section(camera: _evcore.Camera) -> dict:
-    """The ``camera`` mapping of a rig config for ``camera`` (plain floats, 5 distortion terms)."""
-    return dict(
-        width=int(camera.width), height=int(camera.height), fx=float(camera.fx), fy=float(camera.fy),
-        cx=float(camera.cx), cy=float(camera.cy), distortion=[float(v) for v in camera.dist],
-    )  # fmt: skip
+__all__ = ["hand_eye_section", "merge_rig_file", "write_camera_file"]
 
 
 def hand_eye_section(T_e_c: np.ndarray) -> dict:
@@ -45,15 +36,7 @@ def hand_eye_section(T_e_c: np.ndarray) -> dict:
 def _write_yaml(path: Path, data: dict, header: str) -> None:
     if not path.parent.is_dir():
         raise FileNotFoundError(f"output directory does not exist: {path.parent}")
-    text = header + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text_atomic(path, header + yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
 
 
 def write_camera_file(path: str | Path, camera: _evcore.Camera, note: str = "") -> None:
@@ -61,7 +44,7 @@ def write_camera_file(path: str | Path, camera: _evcore.Camera, note: str = "") 
     header = "# Camera intrinsics (evservo calib intrinsics); pixels, OpenCV distortion k1 k2 p1 p2 k3.\n"
     if note:
         header += f"# {note}\n"
-    _write_yaml(Path(path), {"camera": camera_section(camera)}, header)
+    _write_yaml(Path(path), camera_to_mapping(camera), header)
 
 
 def merge_rig_file(path: str | Path, camera: _evcore.Camera, T_e_c: np.ndarray, note: str = "") -> bool:
@@ -79,7 +62,7 @@ def merge_rig_file(path: str | Path, camera: _evcore.Camera, T_e_c: np.ndarray, 
             raise ValueError(f"{p}: a rig config must be a mapping of sections, not merging into it")
         data = dict(loaded or {})
     data["hand_eye"] = hand_eye_section(T_e_c)
-    data["camera"] = camera_section(camera)
+    data["camera"] = camera_to_mapping(camera)
     header = "# Rig config; hand_eye and camera written by evservo calib hand-eye.\n"
     if note:
         header += f"# {note}\n"

@@ -29,6 +29,7 @@ from evservo import _evcore, geometry
 from evservo.calib.board import Board
 from evservo.calib.intrinsics import camera_matrix
 from evservo.calib.views import View
+from evservo.outputs import atomic_path
 
 __all__ = [
     "HAND_EYE_METHODS",
@@ -89,8 +90,8 @@ def read_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_poses(path: str | Path, t_s: np.ndarray, T_b_e: np.ndarray) -> None:
-    """Write a poses CSV (the inverse of :func:`read_poses`)."""
-    with Path(path).open("w", newline="") as f:
+    """Write a poses CSV (the inverse of :func:`read_poses`), atomically."""
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(POSES_HEADER)
         for t, T in zip(t_s, T_b_e, strict=True):

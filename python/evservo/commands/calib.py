@@ -15,8 +15,11 @@ def _board(args: argparse.Namespace):
 
 
 def _check_out(path: str | None) -> None:
-    if path is not None and not Path(path).parent.is_dir():
-        raise FileNotFoundError(f"output directory does not exist: {Path(path).parent}")
+    """A YAML file can be written at ``--out`` (checked before any work)."""
+    from evservo.outputs import check_out_file
+
+    if path is not None:
+        check_out_file(path, (".yaml", ".yml"))
 
 
 def _scan(recording: str, board):
@@ -69,13 +72,13 @@ def run_intrinsics(args: argparse.Namespace) -> int:
 def run_hand_eye(args: argparse.Namespace) -> int:
     from evservo.calib.camfile import merge_rig_file
     from evservo.calib.handeye import calibrate_hand_eye, match_views, read_poses
-    from evservo.robots.config import load_camera_section
+    from evservo.camera_file import load_camera_file
 
     board = _board(args)
     _check_out(args.out)
     if not args.max_dt > 0:
         raise ValueError(f"--max-dt must be > 0 s, got {args.max_dt}")
-    camera = load_camera_section(args.camera)
+    camera = load_camera_file(args.camera)
     t_s, T_b_e = read_poses(args.poses)
     scan = _scan(args.recording, board)
     if (camera.width, camera.height) != (scan.width, scan.height):
@@ -104,44 +107,28 @@ def run_hand_eye(args: argparse.Namespace) -> int:
     return 0
 
 
-def _open_arm_read_only(robot):
-    """The arm of a parsed ``--robot``, opened read-only: capture only reads its poses."""
-    try:
-        if robot.kind == "sim":
-            from evservo.robots.kinematic import KinematicArm
-
-            return KinematicArm(dry_run=True)
-        if robot.kind == "ur":
-            from evservo.robots.ur import UrArm
-
-            return UrArm(robot.host, dry_run=True)
-        from evservo.robots.franka import FrankaArm
-
-        return FrankaArm(robot.host, dry_run=True)
-    except ImportError as err:
-        raise RuntimeError(str(err)) from err
-
-
 def run_capture(args: argparse.Namespace) -> int:
     from evservo.calib.capture import capture
     from evservo.cameras import open_source
-    from evservo.commands.servo_real import parse_robot
+    from evservo.outputs import make_out_dir, prepare_out_dir
+    from evservo.robots.open import open_arm, parse_robot
 
     board = _board(args)
     robot = parse_robot(args.robot)
-    out = Path(args.out)
-    if not out.parent.is_dir():
-        raise FileNotFoundError(f"output directory does not exist: {out.parent}")
+    out = prepare_out_dir(args.out)
     try:
         source = open_source(args.camera)
     except ImportError as err:
         raise RuntimeError(str(err)) from err
     try:
-        arm = _open_arm_read_only(robot)
+        arm = open_arm(robot, None, dry_run=True)  # read-only: capture only reads the flange pose
+    except (ImportError, ConnectionError) as err:  # a missing driver package, an unreachable controller
+        source.close()
+        raise RuntimeError(str(err)) from err
     except BaseException:
         source.close()
         raise
-    out.mkdir(exist_ok=True)
+    make_out_dir(out)
     try:
         result = capture(source, arm, board, args.views, out / "calib.h5", out / "poses.csv", hold_s=args.hold)
     finally:
@@ -163,7 +150,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     i.add_argument("recording", help="event file (any format evservo reads)")
     _board_options(i)
     i.add_argument("--model", default="k1k2", choices=("k1", "k1k2", "full"), help="distortion terms to estimate")
-    i.add_argument("--out", help="camera file to write (YAML, the rig config's camera section)")
+    i.add_argument("--out", help="camera file to write (YAML, evservo's camera-file layout)")
     i.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     i.set_defaults(func=run_intrinsics)
 
@@ -171,7 +158,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     h.add_argument("recording", help="event file of the views")
     h.add_argument("--poses", required=True, help="CSV t_s,x_m,y_m,z_m,qx,qy,qz,qw: flange in base at each view")
     _board_options(h)
-    h.add_argument("--camera", required=True, help="camera file (from calib intrinsics) or a rig config")
+    h.add_argument("--camera", required=True, help="camera file (from calib intrinsics; OpenCV, ROS YAML too)")
     h.add_argument("--max-dt", type=float, default=0.5, help="largest time between a pose and its view, s")
     h.add_argument("--out", help="rig config to write or update (hand_eye and camera sections)")
     h.add_argument("--json", action="store_true", help="print the result as JSON on stdout")

@@ -48,7 +48,7 @@ from evservo.camera_file import CameraFileError, camera_from_mapping
 from evservo.limits import CartesianLimits
 from evservo.robots.safety import Workspace
 
-__all__ = ["RigConfig", "RigConfigError", "load_camera_section", "load_rig_config"]
+__all__ = ["RigConfig", "RigConfigError", "load_rig_config"]
 
 
 class RigConfigError(ValueError):
@@ -206,18 +206,3 @@ def load_rig_config(path: str | os.PathLike) -> RigConfig:
     if unknown:
         raise RigConfigError(f"rig config {p}: unknown section(s) {unknown}")
     return RigConfig(_hand_eye(r, data), _camera(r, data), _limits(r, data), _workspace(r, data), p, *_object(r, data))
-
-
-def load_camera_section(path: str | os.PathLike) -> Camera:
-    """The ``camera`` section of a YAML file (keys and checks as in a rig config; other sections are not
-    read): a rig config, or the camera file ``evservo calib intrinsics`` writes."""
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"no such camera file: {p}")
-    try:
-        data: Any = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as err:
-        raise RigConfigError(f"camera file {p}: not valid YAML: {err}") from err
-    if not isinstance(data, dict):
-        raise RigConfigError(f"camera file {p}: top level must be a mapping with a camera section")
-    return _camera(_Reader(p), data)
