@@ -32,7 +32,7 @@ from evservo.camera_file import load_camera_file
 from evservo.cli import main
 from evservo.limits import CartesianLimits
 from evservo.robots.config import load_rig_config
-from evservo.robots.kinematic import KinematicArm
+from evservo.robots.kinematic import DEFAULT_START, KinematicArm
 from evservo.sim.blinkboard import BlinkingScreen, look_at_board, panda_views, record_views, spread_view_poses
 
 BOARD = Board(9, 6, 0.025)
@@ -282,7 +282,7 @@ def test_capture_writes_views_and_poses_that_match(tmp_path):
     assert np.allclose(T_b_e, np.array(answers), atol=1e-8)
     assert not np.allclose(T_b_e[0], T_b_e[1])
     scan = scan_recording(tmp_path / "calib.h5", BOARD)
-    assert len(scan.views) == 3 and all(v.n_blinks >= 3 for v in scan.views)
+    assert len(scan.views) == 3 and all(v.n_blinks >= 2 for v in scan.views)  # at least one on + off each
     assert match_views(scan.views, t_s, max_dt_s=0.01) == [0, 1, 2]
 
 
@@ -348,3 +348,29 @@ def test_an_outlier_view_is_rejected(strong_scan):
 def test_too_few_views_left_after_rejection_is_an_error(strong_scan):
     with pytest.raises(ValueError, match="view\\(s\\) show the whole 9x6 board"):
         calibrate_intrinsics(strong_scan.views[:5], BOARD, 640, 480)
+
+
+def test_blinks_are_found_through_a_noisy_sensor(tmp_path):
+    """The `noisy` sensor preset (5 Hz shot noise per pixel: ≈ 1.5 Mev/s on 640×480, more than the
+    blinks' own rate averaged over the recording): every blink is found and shows the whole board."""
+    poses = spread_view_poses(STRONG, BOARD, 3, seed=6, distance_m=(0.25, 0.45))
+    rec = tmp_path / "noisy.h5"
+    record_views(rec, STRONG, BOARD, poses, preset="noisy")
+    n_events = evio.info(rec)["n_events"]
+    scan = scan_recording(rec, BOARD)
+    assert n_events > 1_000_000
+    assert (scan.n_blinks, scan.n_detected, len(scan.views)) == (6, 6, 3)
+
+
+def test_capture_command_on_a_replayed_recording(strong_rec, tmp_path, monkeypatch, capsys):
+    """`evservo calib capture --robot sim --camera FILE`: the recording replayed as a live camera, the
+    kinematic stand-in arm opened read-only; one view, then q."""
+    answers = iter(["", "q"])
+    monkeypatch.setattr("builtins.input", lambda prompt="": next(answers))
+    out = tmp_path / "cap"
+    args = ["calib", "capture", "--robot", "sim", "--camera", str(strong_rec["path"]), "--board", "9x6"]
+    assert main([*args, "--square", "0.025", "--hold", "0.7", "--out", str(out)]) == 0
+    t_s, T_b_e = read_poses(out / "poses.csv")
+    assert len(t_s) == 1 and np.allclose(T_b_e[0], DEFAULT_START)  # the stand-in arm's pose
+    assert len(scan_recording(out / "calib.h5", BOARD).views) == 1
+    assert "wrote" in capsys.readouterr().out

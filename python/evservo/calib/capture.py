@@ -93,11 +93,13 @@ class CaptureResult:
 
 def capture(
     source: EventSource, arm: Arm, board: Board, n_views: int, events_out: str | Path, poses_out: str | Path,
-    hold_s: float = 1.0, ask: Callable[[str], str] = input, say: Callable[[str], None] = print,
+    hold_s: float = 1.0, ask: Callable[[str], str] | None = None, say: Callable[[str], None] = print,
 ) -> CaptureResult:  # fmt: skip
     """Guide the user through ``n_views`` views (see the module docstring) and write ``events_out`` (any
     format :func:`evservo.io.write_events` writes) and ``poses_out``. Answering ``q`` to a prompt ends
-    early with the views kept so far. Raises ``RuntimeError`` if the camera fails or its stream ends."""
+    early with the views kept so far. ``ask`` (default :func:`input`) prompts and returns the answer;
+    ``say`` reports. Raises ``RuntimeError`` if the camera fails or its stream ends."""
+    ask = ask or input
     if n_views < 1:
         raise ValueError(f"the number of views must be >= 1, got {n_views}")
     if not (np.isfinite(hold_s) and hold_s > 0):
