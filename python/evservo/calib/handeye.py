@@ -27,7 +27,6 @@ from scipy.spatial.transform import Rotation
 
 from evservo import _evcore, geometry
 from evservo.calib.board import Board
-from evservo.calib.intrinsics import camera_matrix
 from evservo.calib.views import View
 from evservo.outputs import atomic_path
 
@@ -128,7 +127,7 @@ def match_views(views: list[View], t_s: np.ndarray, max_dt_s: float = 0.5) -> li
 
 def board_poses(views: list[View], board: Board, camera: _evcore.Camera) -> np.ndarray:
     """``T_c_board`` (N, 4, 4) of each view by PnP (IPPE for a plane, then Levenberg–Marquardt)."""
-    K, dist = camera_matrix(camera), np.array(camera.dist, float)
+    K, dist = camera.k, np.array(camera.dist, float)
     obj = board.object_points().astype(np.float64)
     out = []
     for v in views:
@@ -183,7 +182,7 @@ def _to_params(T: np.ndarray) -> np.ndarray:
 def _refine(
     T_e_c: np.ndarray, T_b_e: np.ndarray, views: list[View], board: Board, camera: _evcore.Camera, T_b_board: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    K, dist = camera_matrix(camera), np.array(camera.dist, float)
+    K, dist = camera.k, np.array(camera.dist, float)
     obj = board.object_points().astype(np.float64)
     seen = np.concatenate([v.corners.astype(np.float64).ravel() for v in views])
     T_e_b = np.array([geometry.inv(T) for T in T_b_e])

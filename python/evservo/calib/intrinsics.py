@@ -19,7 +19,7 @@ from evservo import _evcore
 from evservo.calib.board import Board
 from evservo.calib.views import View
 
-__all__ = ["DISTORTION_MODELS", "MIN_VIEWS", "IntrinsicsResult", "calibrate_intrinsics", "camera_matrix"]
+__all__ = ["DISTORTION_MODELS", "MIN_VIEWS", "IntrinsicsResult", "calibrate_intrinsics"]
 
 DISTORTION_MODELS = {
     "k1": cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST,
@@ -50,11 +50,6 @@ class IntrinsicsResult:
             fx=c.fx, fy=c.fy, cx=c.cx, cy=c.cy, dist=[float(v) for v in c.dist], rms_px=self.rms_px,
             views_used=len(self.used),
         )  # fmt: skip
-
-
-def camera_matrix(camera: _evcore.Camera) -> np.ndarray:
-    """The 3×3 pinhole matrix K of a camera."""
-    return np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
 
 
 def _solve(views: list[View], board: Board, size: tuple[int, int], flags: int):

@@ -153,7 +153,7 @@ def view_pose_candidates(
     import cv2
 
     rng = np.random.default_rng(seed)
-    K = np.array([[camera.fx, 0, camera.cx], [0, camera.fy, camera.cy], [0, 0, 1]])
+    K = camera.k
     dist = np.array(camera.dist, float)
     s = board.square_m
     outline = np.array(
