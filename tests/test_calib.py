@@ -362,15 +362,20 @@ def test_blinks_are_found_through_a_noisy_sensor(tmp_path):
     assert (scan.n_blinks, scan.n_detected, len(scan.views)) == (6, 6, 3)
 
 
-def test_capture_command_on_a_replayed_recording(strong_rec, tmp_path, monkeypatch, capsys):
-    """`evservo calib capture --robot sim --camera FILE`: the recording replayed as a live camera, the
-    kinematic stand-in arm opened read-only; one view, then q."""
+def test_capture_command_on_a_replayed_recording(tmp_path, monkeypatch, capsys):
+    """`evservo calib capture --robot sim --camera FILE`: a still camera's recording (the screen
+    blinking every 50 ms) replayed as a live camera, the kinematic stand-in arm opened read-only; one
+    view, then q."""
+    camera = _evcore.Camera(320, 240, 260.0, 262.0, 160.5, 119.5, (-0.1, 0.0, 0.0, 0.0, 0.0))
+    rec = tmp_path / "still.h5"
+    record_views(rec, camera, BOARD, [look_at_board(BOARD, (0.0, 0.0, 0.4), (0.2, -0.1, 0.0))], blinks_per_view=16)
     answers = iter(["", "q"])
     monkeypatch.setattr("builtins.input", lambda prompt="": next(answers))
     out = tmp_path / "cap"
-    args = ["calib", "capture", "--robot", "sim", "--camera", str(strong_rec["path"]), "--board", "9x6"]
-    assert main([*args, "--square", "0.025", "--hold", "0.7", "--out", str(out)]) == 0
+    args = ["calib", "capture", "--robot", "sim", "--camera", str(rec), "--board", "9x6", "--square", "0.025"]
+    assert main([*args, "--hold", "0.5", "--out", str(out)]) == 0
     t_s, T_b_e = read_poses(out / "poses.csv")
     assert len(t_s) == 1 and np.allclose(T_b_e[0], DEFAULT_START)  # the stand-in arm's pose
-    assert len(scan_recording(out / "calib.h5", BOARD).views) == 1
+    views = scan_recording(out / "calib.h5", BOARD).views
+    assert len(views) == 1 and views[0].n_blinks >= 2
     assert "wrote" in capsys.readouterr().out
