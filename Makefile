@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 export VIRTUAL_ENV := $(abspath $(VENV))
 export PATH := $(abspath $(BIN)):$(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: setup build demo test test-rust test-python bench lint fmt clean
+.PHONY: setup build demo test test-rust test-python stubtest bench lint fmt clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -34,7 +34,11 @@ test-rust:
 test-python: setup
 	PYTHONUNBUFFERED=1 $(BIN)/python -m pytest -q
 
-test: test-rust test-python
+# The hand-written stubs of the compiled core, checked against the built extension.
+stubtest: setup
+	$(BIN)/python -m mypy.stubtest evservo._evcore
+
+test: lint stubtest test-rust test-python
 
 bench: setup
 	cargo bench -p evcore

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from evservo import geometry
-from evservo.control import CartesianLimits, Pbvs, pose_error, rotmat
+from evservo.control import Pbvs, pose_error
+from evservo.geometry import rotmat
+from evservo.limits import CartesianLimits
 
 Z = 0.6
 

@@ -8,6 +8,27 @@ EVENT_CD = np.dtype(
 )
 
 
+def lossless_column(name: str, values: np.ndarray) -> np.ndarray:
+    """Field ``name`` of :data:`EVENT_CD` from ``values`` (any numeric array), converted only when no
+    value changes: ``ValueError`` for NaN, infinite or fractional values and for values outside the
+    field's integer range (``p`` = 70000 or ``x`` = -1 would otherwise wrap, NaN would become 0)."""
+    dtype = EVENT_CD[name]
+    v = np.asarray(values)
+    if v.dtype == dtype:
+        return v
+    if v.dtype.kind == "f":
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"event field {name} holds NaN or infinite values")
+        if np.any(v != np.trunc(v)):
+            raise ValueError(f"event field {name} holds fractional values")
+    elif v.dtype.kind not in "iub":
+        raise ValueError(f"event field {name} must be numeric, got dtype {v.dtype}")
+    lim = np.iinfo(dtype)
+    if v.size and (v.min() < lim.min or v.max() > lim.max):
+        raise ValueError(f"event field {name} has values outside {lim.min}..{lim.max} (range {v.min()}..{v.max()})")
+    return v.astype(dtype)
+
+
 def clamp_time(ev: np.ndarray, t_max: int | None) -> tuple[np.ndarray, int, int | None]:
     """Events whose time steps back below the newest one already seen (``t_max``, µs, or None before
     the first batch) restamped with that newest time: a clamp, never a drop, so a live-like consumer

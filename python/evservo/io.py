@@ -56,6 +56,9 @@ import numpy as np
 
 from evservo import aedat4, bags
 from evservo._evcore import DecodeError, RawReader
+from evservo.events import lossless_column
+from evservo.inputs import require_regular_file
+from evservo.outputs import atomic_path
 
 __all__ = ["EVENT_CD", "DecodeError", "info", "open_events", "read_events", "write_events"]
 
@@ -110,15 +113,13 @@ def _checked_path(path: str | os.PathLike, topic: str | None = None) -> tuple[Pa
     suffix = p.suffix.lower()
     if suffix not in _SUFFIXES:
         raise ValueError(f"unsupported event file extension {suffix!r} for {p} (supported: {', '.join(_SUFFIXES)})")
-    if not p.is_file():
-        raise FileNotFoundError(f"no such event file: {p}")
-    return p, suffix
+    return require_regular_file(p, "event file"), suffix
 
 
 def _columns_to_cd(cols: dict) -> np.ndarray:
     out = np.empty(len(cols["t"]), dtype=EVENT_CD)
     for name in EVENT_CD.names:
-        out[name] = cols[name]
+        out[name] = lossless_column(name, cols[name])
     return out
 
 
@@ -132,7 +133,7 @@ def _as_cd(events: np.ndarray) -> np.ndarray:
         return events
     out = np.empty(len(events), dtype=EVENT_CD)
     for name in EVENT_CD.names:
-        out[name] = events[name]
+        out[name] = lossless_column(name, events[name])
     return out
 
 
@@ -142,13 +143,45 @@ def _inferred_geometry(events: np.ndarray) -> tuple[int, int]:
     return int(events["x"].max()) + 1, int(events["y"].max()) + 1
 
 
+#: Largest sensor side a file may declare: x and y are u16 pixel indices.
+MAX_SENSOR_SIDE = 1 << 16
+
+
+def _stored_geometry(p: Path, width: object, height: object) -> tuple[int, int]:
+    """A file's declared sensor size as ints, refused unless both are whole numbers in
+    1..:data:`MAX_SENSOR_SIDE` (a negative or huge size would otherwise flow into allocations)."""
+
+    def side(v: object) -> int | None:
+        v = v.item() if isinstance(v, np.ndarray | np.generic) and np.ndim(v) == 0 else v
+        if isinstance(v, bytes | str):
+            text = v.decode() if isinstance(v, bytes) else v
+            return int(text) if text.strip().isdigit() else None
+        if isinstance(v, float) and v.is_integer():
+            return int(v)
+        return v if isinstance(v, int) and not isinstance(v, bool) else None
+
+    w, h = side(width), side(height)
+    if w is None or h is None or not (1 <= w <= MAX_SENSOR_SIDE and 1 <= h <= MAX_SENSOR_SIDE):
+        raise DecodeError(f"{p}: sensor size must be whole numbers in 1..{MAX_SENSOR_SIDE}, got {width}x{height}")
+    return w, h
+
+
+def _h5_columns(p: Path, g: h5py.Group, sl: slice = slice(None)) -> dict[str, np.ndarray]:
+    """The four event columns of our HDF5 layout (the slice ``sl`` of each), refused when their
+    lengths differ instead of being broadcast."""
+    lengths = {n: len(g[n]) for n in EVENT_CD.names}
+    if len(set(lengths.values())) != 1:
+        raise DecodeError(f"{p}: event columns differ in length: {lengths}")
+    return {n: g[n][sl] for n in EVENT_CD.names}
+
+
 def _load_npz(p: Path) -> tuple[np.ndarray, int, int]:
     try:
         with np.load(p, allow_pickle=False) as z:
-            events, width, height = z["events"], int(z["width"]), int(z["height"])
+            events, width, height = z["events"], z["width"], z["height"]
     except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
         raise DecodeError(f"{p}: corrupt or not an evservo .npz (events, width, height): {e}") from e
-    return _decoded_cd(p, events), width, height
+    return _decoded_cd(p, events), *_stored_geometry(p, width, height)
 
 
 def _decoded_cd(p: Path, events: np.ndarray) -> np.ndarray:
@@ -187,8 +220,8 @@ def _load_h5(p: Path) -> tuple[np.ndarray, int, int, bool, str]:
         with f:
             if "events" in f and isinstance(f["events"], h5py.Group):
                 g = f["events"]
-                events = _columns_to_cd({n: g[n][()] for n in EVENT_CD.names})
-                return events, int(g.attrs["width"]), int(g.attrs["height"]), False, "hdf5"
+                events = _columns_to_cd(_h5_columns(p, g))
+                return events, *_stored_geometry(p, g.attrs["width"], g.attrs["height"]), False, "hdf5"
             if "CD/events" in f:
                 ds = f["CD/events"]
                 _check_ecf(p, ds)
@@ -198,9 +231,9 @@ def _load_h5(p: Path) -> tuple[np.ndarray, int, int, bool, str]:
                     geometry = geometry.decode()
                 if isinstance(geometry, str) and "x" in geometry:
                     w, h = geometry.split("x", 1)
-                    return events, int(w), int(h), False, "metavision-hdf5"
+                    return events, *_stored_geometry(p, w, h), False, "metavision-hdf5"
                 if "width" in f.attrs and "height" in f.attrs:
-                    return events, int(f.attrs["width"]), int(f.attrs["height"]), False, "metavision-hdf5"
+                    return events, *_stored_geometry(p, f.attrs["width"], f.attrs["height"]), False, "metavision-hdf5"
                 return events, *_inferred_geometry(events), True, "metavision-hdf5"
     except DecodeError:
         raise
@@ -257,7 +290,9 @@ def _h5_blocks(p: Path, n: int) -> Iterator[np.ndarray]:
             g = f["events"]
             total = len(g["t"])
             for start in range(0, total, n):
-                yield _columns_to_cd({name: g[name][start : start + n] for name in EVENT_CD.names})
+                yield _columns_to_cd(_h5_columns(p, g, slice(start, start + n)))
+    except DecodeError:
+        raise
     except (KeyError, OSError, ValueError, TypeError) as e:
         raise DecodeError(f"{p}: unreadable event HDF5: {e}") from e
 
@@ -444,6 +479,17 @@ def _bag_info(p: Path, topic: str | None) -> dict:
     )  # fmt: skip
 
 
+#: Root attribute of a simulated recording (:mod:`evservo.sim.record`): 0 while it is written, 1 as
+#: its last write. Recordings from before it existed lack it and count as complete.
+RECORDING_COMPLETE_ATTR = "evservo_complete"
+
+
+def check_complete_recording(p: Path, f: h5py.File) -> None:
+    """Raise :class:`DecodeError` for a simulated recording whose writer stopped before its last write."""
+    if f.attrs.get("evservo_recording", 0) and not f.attrs.get(RECORDING_COMPLETE_ATTR, 1):
+        raise DecodeError(f"{p} is an incomplete recording (its `evservo sim record` was interrupted): record it again")
+
+
 def _h5_info(p: Path) -> dict:
     """:func:`info` of our HDF5 layout from the dataset shapes and end points; a simulated recording
     (:mod:`evservo.sim.record`) also reports ``object``, ``trajectory``, ``duration_s`` and ``has_gt``."""
@@ -452,16 +498,21 @@ def _h5_info(p: Path) -> dict:
             g = f["events"]
             t = g["t"]
             n = len(t)
+            _h5_columns(p, g, slice(0, 0))
+            width, height = _stored_geometry(p, g.attrs["width"], g.attrs["height"])
             out = dict(
-                format="hdf5", width=int(g.attrs["width"]), height=int(g.attrs["height"]), n_events=n,
+                format="hdf5", width=width, height=height, n_events=n,
                 t_first_us=int(t[0]) if n else None, t_last_us=int(t[n - 1]) if n else None, geometry_inferred=False,
             )  # fmt: skip
+            check_complete_recording(p, f)
             if f.attrs.get("evservo_recording", 0):
                 out.update(
                     object=str(f.attrs["object"]), trajectory=str(f.attrs["trajectory"]),
                     duration_s=float(f.attrs["duration_s"]), has_gt="gt/T_c_o" in f,
                 )  # fmt: skip
             return out
+    except DecodeError:
+        raise
     except (KeyError, OSError, ValueError, TypeError) as e:
         raise DecodeError(f"{p}: unreadable event HDF5: {e}") from e
 
@@ -482,16 +533,28 @@ def write_events(
             f"cannot write {suffix!r} event files (supported: .npz, .npy, .h5, .hdf5, .mcap, a rosbag2 directory)"
         )
     events = _as_cd(np.asarray(events))
-    if width < 1 or height < 1:
-        raise ValueError(f"sensor size must be positive, got {width}x{height}")
+    if not (1 <= width <= MAX_SENSOR_SIDE and 1 <= height <= MAX_SENSOR_SIDE):
+        raise ValueError(f"sensor size must be in 1..{MAX_SENSOR_SIDE} per side, got {width}x{height}")
     if len(events) and (int(events["x"].max()) >= width or int(events["y"].max()) >= height):
         raise ValueError(f"events reach beyond the {width}x{height} sensor")
     if suffix in (".mcap", ""):
+        # Written into a temporary directory beside the target, moved into place when complete.
         bags.write(p, events, width, height, topic)
-    elif suffix == ".npz":
-        np.savez_compressed(p, events=events, width=np.int64(width), height=np.int64(height))
+        return
+    if p.is_dir():
+        raise ValueError(f"{p} is a directory; give an event file name")
+    # To a temporary file beside it, renamed when complete: an interrupted write keeps the old file.
+    with atomic_path(p) as tmp:
+        _write_to(tmp, suffix, events, width, height)
+
+
+def _write_to(p: Path, suffix: str, events: np.ndarray, width: int, height: int) -> None:
+    if suffix == ".npz":
+        with p.open("wb") as fh:  # a file object: numpy would append ".npz" to a name lacking it
+            np.savez_compressed(fh, events=events, width=np.int64(width), height=np.int64(height))
     elif suffix == ".npy":
-        np.save(p, events)
+        with p.open("wb") as fh:
+            np.save(fh, events)
     else:
         with h5py.File(p, "w") as f:
             g = f.create_group("events")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from evservo import _evcore
+from evservo.events import lossless_column
 from evservo.geometry import as_pose
 from evservo.models import load_object, to_core_mesh
 
@@ -26,16 +27,8 @@ def event_columns(events: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     missing = [f for f in ("x", "y", "p", "t") if f not in names]
     if missing:
         raise ValueError(f"events must be a structured array with fields x, y, p, t; missing {missing}")
-    x = np.asarray(events["x"])
-    y = np.asarray(events["y"])
-    if x.size and (x.min() < 0 or y.min() < 0 or x.max() > 65535 or y.max() > 65535):
-        raise ValueError("event coordinates must lie in 0..65535")
-    return (
-        np.ascontiguousarray(x, dtype=np.uint16),
-        np.ascontiguousarray(y, dtype=np.uint16),
-        np.ascontiguousarray(events["p"], dtype=np.int16),
-        np.ascontiguousarray(events["t"], dtype=np.int64),
-    )
+    x, y, p, t = (np.ascontiguousarray(lossless_column(f, events[f])) for f in ("x", "y", "p", "t"))
+    return x, y, p, t
 
 
 def model_point_set(
@@ -99,6 +92,12 @@ class Tracker:
     def step(self, n: int = 1) -> Estimate:
         """Synchronous: run ``n`` single updates (one LM or one search step each) on the current events."""
         return self._core.step(n)
+
+    @property
+    def cycle_len(self) -> int:
+        """Steps per cycle (1 LM + N search for edft+, N + 1 steps otherwise); the thread rests after
+        this many steps without new events. Read it before :meth:`start`."""
+        return self._core.cycle_len
 
     def start(self) -> None:
         """Start the solver thread; then feed it with ``push`` and read ``latest``."""

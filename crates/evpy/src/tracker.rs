@@ -280,6 +280,18 @@ impl PyTracker {
         }
     }
 
+    /// Steps per cycle: 1 LM + N search for edft+, N + 1 steps of a single solver otherwise. After
+    /// this many steps without new events the thread rests until the next batch.
+    #[getter]
+    fn cycle_len(&self) -> PyResult<usize> {
+        match &self.state {
+            State::Sync(core) => Ok(core.cycle_len()),
+            _ => Err(PyRuntimeError::new_err(
+                "the tracker thread is running: read cycle_len before start()",
+            )),
+        }
+    }
+
     #[getter]
     fn running(&self) -> bool {
         matches!(&self.state, State::Threaded(t) if t.is_running())

@@ -23,8 +23,8 @@ import multiprocessing
 import os
 import platform
 import shutil
+import signal
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -100,8 +100,29 @@ def _run_one(cfg: EpisodeConfig, out_dir: str) -> dict:
 
     result = run_episode(cfg)
     summary = summarize(result)
+    if summary["interrupted"]:
+        # A partial episode must not be written: the next run would reuse it as finished.
+        raise KeyboardInterrupt
     write_outputs(result, out_dir, summary)
     return summary
+
+
+def _run_keyed(item: tuple[str, EpisodeConfig, str]) -> tuple[str, dict]:
+    key, cfg, out_dir = item
+    return key, _run_one(cfg, out_dir)
+
+
+def _ignore_sigint() -> None:
+    """Worker initializer: Ctrl-C reaches the whole process group, but only the parent acts on it
+    (it terminates the workers); a worker that caught it would hand back an interrupted episode."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _load_summary(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path}: unreadable episode summary ({e}); delete it to rerun the episode") from None
 
 
 def run_all(out: Path, quick: bool, jobs: int) -> tuple[list[tuple[str, str, EpisodeConfig, dict]], int]:
@@ -116,7 +137,7 @@ def run_all(out: Path, quick: bool, jobs: int) -> tuple[list[tuple[str, str, Epi
     for _, key, cfg in rows:
         path = out / "episodes" / key / "summary.json"
         if path.exists():
-            summaries[key] = json.loads(path.read_text())
+            summaries[key] = _load_summary(path)
         else:
             todo[key] = cfg
     bar = tqdm(total=len(todo) + len(summaries), initial=len(summaries), unit="episode", desc="paper suite")
@@ -128,12 +149,21 @@ def run_all(out: Path, quick: bool, jobs: int) -> tuple[list[tuple[str, str, Epi
         else:
             # Workers are spawned, not forked: a fork copies rayon's global pool without its threads, and the
             # child's first parallel call then waits forever for workers that do not exist.
+            # A multiprocessing pool rather than concurrent.futures: on Ctrl-C (or a failed episode) the
+            # parent terminates the workers at once instead of waiting for their queued episodes.
             ctx = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-                futures = {pool.submit(_run_one, cfg, str(out / "episodes" / key)): key for key, cfg in todo.items()}
-                for fut in as_completed(futures):
-                    summaries[futures[fut]] = fut.result()
+            items = [(key, cfg, str(out / "episodes" / key)) for key, cfg in todo.items()]
+            pool = ctx.Pool(processes=jobs, initializer=_ignore_sigint)
+            try:
+                for key, summary in pool.imap_unordered(_run_keyed, items):
+                    summaries[key] = summary
                     bar.update()
+                pool.close()
+            except BaseException:
+                pool.terminate()
+                raise
+            finally:
+                pool.join()
     return [(section, key, cfg, summaries[key]) for section, key, cfg in rows], len(summaries) - len(todo)
 
 

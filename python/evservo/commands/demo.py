@@ -17,5 +17,5 @@ def run(args: argparse.Namespace) -> int:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     d = sub.add_parser("demo", help="servo the simulated arm to a moving box (closed loop)")
-    servo.add_episode_arguments(d, distance=0.9, speed=0.3, duration=12.0)
+    servo.add_episode_arguments(d, duration_s=12.0)
     d.set_defaults(func=run)

@@ -21,72 +21,84 @@ PAPER_TABLE = {
 }
 
 
-def add_episode_arguments(p: argparse.ArgumentParser, *, distance: float, speed: float, duration: float) -> None:
-    """Options shared by ``servo`` and ``demo`` (defaults differ)."""
-    from evservo.sim.episode import COST_MODELS
+#: Options of the simulated bench only (``--robot`` refuses them), by EpisodeConfig field.
+SIM_ONLY = {
+    "object": "object", "trajectory": "trajectory", "speed": "speed_mps", "rot_rate": "rot_rate_dps",
+    "distance": "distance_m", "seed": "seed", "cost_model": "cost_model", "dropout": "dropout_s",
+    "events": "event_source", "render_arms": "render_arms",
+}  # fmt: skip
+
+
+def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> None:
+    """Options shared by ``servo`` and ``demo``. ``defaults``: the command's own defaults, as
+    :class:`~evservo.sim.episode.EpisodeConfig` fields (the config's own defaults hold otherwise).
+    Sim-only options parse to None when not given, so ``--robot`` can tell they were."""
+    from dataclasses import fields
+
+    from evservo.sim.episode import COST_MODELS, EpisodeConfig
     from evservo.tracking import SOLVERS
 
-    p.add_argument("--object", default="box", help="box, drill, football or a mesh path")
-    p.add_argument("--tracker", default="edft+", choices=SOLVERS)
-    p.add_argument("--trajectory", default="trans", help="trans, trans-rot, circle, figure8, stop-go or a CSV")
-    p.add_argument("--speed", type=float, default=speed, help="peak target speed, m/s")
-    p.add_argument("--rot-rate", type=float, default=30.0, help="peak target rotation rate (trans-rot), deg/s")
-    p.add_argument("--distance", type=float, default=distance, help="camera–object distance Z, m")
-    p.add_argument("--duration", type=float, default=duration, help="servoing time, s")
-    p.add_argument("--seed", type=int, default=1)
+    base = {f.name: f.default for f in fields(EpisodeConfig)}
+    unknown = set(defaults) - set(base)
+    if unknown:
+        raise TypeError(f"not EpisodeConfig fields: {sorted(unknown)}")
+    base.update(defaults)
+    p.set_defaults(episode_defaults=dict(defaults))
+
+    def d(name: str) -> str:
+        return f"(default {base[name]})"
+
+    p.add_argument("--object", help=f"box, drill, football or a mesh path {d('object')}")
+    p.add_argument("--tracker", default=base["tracker"], choices=SOLVERS)
+    p.add_argument("--trajectory", help=f"trans, trans-rot, circle, figure8, stop-go or a CSV {d('trajectory')}")
+    p.add_argument("--speed", type=float, help=f"peak target speed, m/s {d('speed_mps')}")
+    p.add_argument("--rot-rate", type=float, help=f"peak target rotation rate (trans-rot), deg/s {d('rot_rate_dps')}")
+    p.add_argument("--distance", type=float, help=f"camera–object distance Z, m {d('distance_m')}")
+    p.add_argument("--duration", type=float, default=base["duration_s"], help="servoing time, s")
+    p.add_argument("--seed", type=int, help=f"random seed {d('seed')}")
     p.add_argument("--feedforward", action="store_true", help="feed the target's velocity and acceleration forward")
-    p.add_argument("--cost-model", default="measured", choices=COST_MODELS, help="tracker time charged to the clock")
+    p.add_argument("--cost-model", choices=COST_MODELS, help=f"tracker time charged to the clock {d('cost_model')}")
     p.add_argument("--dropout", type=float, nargs=2, metavar=("START", "END"), help="lose all events in [START, END) s")
     p.add_argument(
         "--events",
-        default="edges",
         choices=("edges", "render"),
-        help="event source: the model's edges (fast) or the rendered event camera (realistic, slow)",
+        help=f"event source: the model's edges (fast) or the rendered event camera (slow) {d('event_source')}",
     )
     p.add_argument(
         "--render-arms",
         action="store_true",
+        default=None,
         help="also draw the UR5e and Panda arms into the rendered event camera (needs --events render)",
     )
     p.add_argument("--out", type=Path, help="output directory (summary.json, log.csv, motion.png)")
+
+
+def sim_options_given(args: argparse.Namespace) -> list[str]:
+    """The sim-only options given on the command line, as ``--name``."""
+    return [f"--{opt.replace('_', '-')}" for opt in SIM_ONLY if getattr(args, opt, None) is not None]
 
 
 def config_from_args(args: argparse.Namespace):
     """The :class:`~evservo.sim.episode.EpisodeConfig` of parsed options."""
     from evservo.sim.episode import EpisodeConfig
 
-    return EpisodeConfig(
-        object=args.object,
-        tracker=args.tracker,
-        trajectory=args.trajectory,
-        speed_mps=args.speed,
-        rot_rate_dps=args.rot_rate,
-        distance_m=args.distance,
-        duration_s=args.duration,
-        seed=args.seed,
-        feedforward=args.feedforward,
-        cost_model=args.cost_model,
-        dropout_s=tuple(args.dropout) if args.dropout else None,
-        event_source=args.events,
-        render_arms=getattr(args, "render_arms", False),
-    )
+    values = dict(args.episode_defaults)
+    values.update({field: getattr(args, opt) for opt, field in SIM_ONLY.items() if getattr(args, opt) is not None})
+    if values.get("dropout_s") is not None:
+        values["dropout_s"] = tuple(values["dropout_s"])
+    return EpisodeConfig(**values, tracker=args.tracker, duration_s=args.duration, feedforward=args.feedforward)
 
 
 def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
     """Run the episode with a progress bar, write the outputs, print the summary beside the paper."""
     from tqdm import tqdm
 
-    from evservo.sim.episode import run_episode, summarize, write_outputs
+    from evservo.outputs import prepare_out_dir
+    from evservo.sim.episode import OUTPUTS, run_episode, summarize, write_outputs
 
-    if getattr(args, "render_arms", False) and args.events != "render":
-        print(
-            "evservo: error: --render-arms draws the arms in the rendered event camera: "
-            f"it needs --events render, not --events {args.events}",
-            file=sys.stderr,
-        )
-        return 2
     cfg = config_from_args(args)
-    out = args.out or default_out
+    # Checked, and cleared of an earlier run's files, before the run: never fails after it.
+    out = prepare_out_dir(args.out or default_out, stale=OUTPUTS)
     print(
         f"servo (sim): {cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s, "
         f"{cfg.duration_s} s, feed-forward {'on' if cfg.feedforward else 'off'}, cost model {cfg.cost_model}"
@@ -97,6 +109,9 @@ def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
     paths = write_outputs(result, out, summary)
     print_summary(summary)
     print(f"figure: {paths['motion']}\nsummary: {paths['summary']}\nlog: {paths['log']}")
+    if summary["interrupted"]:
+        print(f"evservo: interrupted: partial outputs (marked interrupted) in {out}", file=sys.stderr)
+        return 130
     return 0
 
 
@@ -123,6 +138,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.sim:
         from evservo.commands.servo_real import run_real
 
+        given = sim_options_given(args)
+        if given:
+            raise ValueError(f"{', '.join(given)} only apply with --sim (the simulated bench), not with --robot")
         return run_real(args)
     given = [f"--{name.replace('_', '-')}" for name in REAL_ONLY if getattr(args, name) not in (None, False)]
     if given:
@@ -144,7 +162,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="ur:HOST|franka:HOST|sim",
         help="the real loop on a UR (ur-rtde) or Franka (franky) arm, or on a kinematic stand-in arm (sim)",
     )
-    add_episode_arguments(s, distance=0.9, speed=0.4, duration=20.0)
+    add_episode_arguments(s, speed_mps=0.4)
+    from dataclasses import fields
+
+    from evservo.realloop import RealLoopConfig
+
+    real = {f.name: f.default for f in fields(RealLoopConfig)}
     r = s.add_argument_group("real loop (--robot)")
     r.add_argument("--camera", metavar="prophesee[:SERIAL]|dv[:SERIAL]|FILE",
                    help="live camera, or an event file replayed at real time")  # fmt: skip
@@ -153,11 +176,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--init-pose", metavar="x,y,z,qx,qy,qz,qw", help="object in camera at start (default: config's)")
     r.add_argument("--desired-pose", metavar="x,y,z,qx,qy,qz,qw",
                    help="object in camera to servo to (default: the tracked pose when servoing starts)")  # fmt: skip
-    r.add_argument("--settle", type=float, help="tracking before the arm moves, s from the first pose (default 0.5)")
-    r.add_argument("--stiffness", type=float, help="k of Eq. 6, 1/s² (default 20, the paper's)")
-    r.add_argument("--rate", type=float, help="control rate, Hz (default 500)")
-    r.add_argument("--stale-after", type=float, help="watchdog: stop when no fresh pose for this long, s (default 0.1)")
-    r.add_argument("--replay-speed", type=float, help="replay FILE this many times faster than real time (default 1)")
+    r.add_argument(
+        "--settle",
+        type=float,
+        help=f"tracking before the arm moves, s from the first pose (default {real['settle_s']})",
+    )
+    r.add_argument("--stiffness", type=float, help=f"k of Eq. 6, 1/s² (default {real['stiffness']}, the paper's)")
+    r.add_argument("--rate", type=float, help=f"control rate, Hz (default {real['rate_hz']})")
+    r.add_argument(
+        "--stale-after",
+        type=float,
+        help=f"watchdog: stop when no fresh pose for this long, s (default {real['stale_after_s']})",
+    )
+    r.add_argument(
+        "--replay-speed",
+        type=float,
+        help=f"replay FILE this many times faster than real time (default {real['speed']})",
+    )
     r.add_argument("--dry-run", action="store_true", help="run everything but never move the arm (commands logged)")
     r.add_argument("--realtime", choices=("enforce", "ignore"),
                    help="franka: libfranka's realtime check (default enforce; ignore for franky-sim)")  # fmt: skip

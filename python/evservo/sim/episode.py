@@ -31,8 +31,6 @@ Frames: w world, c camera optical frame, o object; ``T_a_b`` is b in a (4×4, me
 
 from __future__ import annotations
 
-import csv
-import json
 import time
 from collections import deque
 from collections.abc import Callable
@@ -43,7 +41,13 @@ import numpy as np
 
 from evservo import _evcore, geometry, trajectories
 from evservo.control import Pbvs
+from evservo.geometry import pose_errors, rotation_from_first_rad
+from evservo.interrupt import INTERRUPTED, StopOnInterrupt
+from evservo.outputs import make_out_dir
 from evservo.robots import PoseFollower, shift_twist
+from evservo.runtime.metrics import estimate_lag_s, rms
+from evservo.runtime.report import plot_motion, write_log, write_summary
+from evservo.runtime.watchdog import WatchdogSpell, spells_from_flags
 from evservo.sim.arms import ArmMeshes
 from evservo.sim.scene import DualArmScene
 from evservo.sim.sources import EVENT_SOURCES, EventSource, make_event_source
@@ -52,6 +56,10 @@ from evservo.tracking import FRONTENDS, SOLVERS, Tracker
 COST_MODELS = ("measured", "fixed")
 TICK_US = 1000  # physics step, event batch and Panda command period
 UR_PERIOD_US = 2000
+#: Longest episode: the per-tick (1 kHz) record is preallocated, ~0.4 kB a tick.
+MAX_DURATION_S = 3600.0
+#: The files :func:`write_outputs` writes into an episode's directory.
+OUTPUTS = ("summary.json", "log.csv", "motion.png")
 
 
 @dataclass(frozen=True)
@@ -114,6 +122,17 @@ class EpisodeConfig:
             raise ValueError(f"unknown event source {self.event_source!r}; choose one of {sorted(EVENT_SOURCES)}")
         if not (self.duration_s > 0 and self.distance_m > 0 and self.speed_mps >= 0 and self.ramp_s >= 0):
             raise ValueError("duration and distance must be > 0, speed and ramp >= 0")
+        numbers = dict(duration_s=self.duration_s, distance_m=self.distance_m, speed_mps=self.speed_mps,
+                       rot_rate_dps=self.rot_rate_dps, ramp_s=self.ramp_s, stiffness=self.stiffness)  # fmt: skip
+        for name, v in numbers.items():
+            if not np.isfinite(v):
+                raise ValueError(f"{name} must be finite, got {v}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        # The trajectory (a kind or a CSV file) is checked here, before any simulation is set up.
+        trajectories.make_trajectory(self.trajectory, speed_mps=self.speed_mps, rot_rate_dps=self.rot_rate_dps)
+        if self.duration_s > MAX_DURATION_S:
+            raise ValueError(f"duration must be at most {MAX_DURATION_S:g} s (per-tick record), got {self.duration_s}")
         if not (self.lm_cost_s > 0 and self.search_cost_s > 0 and self.sensing_latency_s >= 0):
             raise ValueError("step costs must be > 0 and the latency >= 0")
         if round(self.control_period_s * 1e6) % TICK_US or self.control_period_s <= 0:
@@ -125,20 +144,6 @@ class EpisodeConfig:
             )
         if self.dropout_s is not None and not self.dropout_s[0] < self.dropout_s[1]:
             raise ValueError("dropout_s must be (start, end) with start < end")
-
-
-@dataclass(frozen=True)
-class WatchdogEvent:
-    """One spell of the controller's watchdog (no fresh pose for ``stale_after_s``), in seconds.
-
-    ``last_pose_s``: time stamp of the last pose accepted before it; ``start_s``: first control cycle
-    that braked; ``zero_s``: first tick the commanded camera twist was exactly zero (None if never);
-    ``end_s``: first cycle servoing again (None if it lasted to the end)."""
-
-    start_s: float
-    last_pose_s: float
-    zero_s: float | None
-    end_s: float | None
 
 
 @dataclass
@@ -169,7 +174,7 @@ class EpisodeResult:
     busy_s: float
     wall_s: float
     events: int
-    watchdog_events: list[WatchdogEvent] = field(default_factory=list)
+    watchdog_events: list[WatchdogSpell] = field(default_factory=list)
 
     @property
     def T_c_o_true(self) -> np.ndarray:
@@ -189,8 +194,7 @@ class ClockedTracker:
         ``cpu_s`` of this thread's CPU time (ingest included)."""
         self.tracker = tracker
         self.cost = cost
-        # One cycle is 1 LM + 4 search steps (edft+) or 5 steps of a single solver (n_search = 4).
-        self.cycle_len = 5
+        self.cycle_len = tracker.cycle_len
         self.free_us = 0  # when the solver can start its next step
         self._queue: deque[tuple[int, np.ndarray]] = deque()
         self._pending: deque[tuple[int, _evcore.Estimate]] = deque()
@@ -331,56 +335,60 @@ def run_episode(
     T_c_o_true = [T_c_o0]  # per tick, to score an estimate against the truth at its own time
     v_cmd, watchdog = np.zeros(6), False
     last_seq, ended, lost_at, n_events, done = 0, "duration", None, 0, 0
-    for k in range(n):
-        t_us = k * TICK_US
-        t = t_us * 1e-6
-        try:
-            if t_us % UR_PERIOD_US == 0:
-                follower.command(t)
-            T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
-            v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
-            est = tracker.latest(t_us)
-            if k % ctrl_every == 0:
-                # A pose counts once, and not at all when the tracker flags itself lost.
-                fresh = est.seq != last_seq and not est.lost
-                last_seq = est.seq
-                cmd = pbvs.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6)
-                v_cmd, watchdog = cmd.v_c_w, cmd.watchdog
-            if watchdog and not np.any(v_cmd):
-                scene.panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
-            else:
-                scene.panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), TICK_US * 1e-6)
-        except RuntimeError as err:  # an infeasible IK QP: report it, do not crash the run
-            ended = f"arm error: {err}"
-            break
-        T_est = est.T_c_o
-        j = min(round(est.t_us / TICK_US), k)
-        if geometry.translation_error_m(T_est, T_c_o_true[j]) > cfg.lost_pos_m or (
-            geometry.rotation_error_rad(T_est, T_c_o_true[j]) > lost_rot
-        ):
-            ended, lost_at = "tracking lost", t
-            break
-        rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = scene.T_w_o(), T_w_c, T_est
-        rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
-        rec["watchdog"][k] = watchdog
-        done = k + 1
+    with StopOnInterrupt() as stop:
+        for k in range(n):
+            if stop.requested:  # Ctrl-C: the ticks done so far make a partial result
+                ended = INTERRUPTED
+                break
+            t_us = k * TICK_US
+            t = t_us * 1e-6
+            try:
+                if t_us % UR_PERIOD_US == 0:
+                    follower.command(t)
+                T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
+                v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
+                est = tracker.latest(t_us)
+                if k % ctrl_every == 0:
+                    # A pose counts once, and not at all when the tracker flags itself lost.
+                    fresh = est.seq != last_seq and not est.lost
+                    last_seq = est.seq
+                    cmd = pbvs.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6)
+                    v_cmd, watchdog = cmd.v_c_w, cmd.watchdog
+                if watchdog and not np.any(v_cmd):
+                    scene.panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
+                else:
+                    scene.panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), TICK_US * 1e-6)
+            except RuntimeError as err:  # an infeasible IK QP: report it, do not crash the run
+                ended = f"arm error: {err}"
+                break
+            T_est = est.T_c_o
+            j = min(round(est.t_us / TICK_US), k)
+            if geometry.translation_error_m(T_est, T_c_o_true[j]) > cfg.lost_pos_m or (
+                geometry.rotation_error_rad(T_est, T_c_o_true[j]) > lost_rot
+            ):
+                ended, lost_at = "tracking lost", t
+                break
+            rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = scene.T_w_o(), T_w_c, T_est
+            rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
+            rec["watchdog"][k] = watchdog
+            done = k + 1
 
-        scene.step(1)
-        t_next = t_us + TICK_US
-        T_now = scene.T_c_o()
-        T_c_o_true.append(T_now)
-        if arms is None:
-            events = source.events_until(t_next, T_now, scene.T_w_c())
-        else:
-            T_w_c = scene.T_w_c()
-            events = source.events_until(t_next, T_now, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
-        if drop is not None and len(events):
-            events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
-        n_events += len(events)
-        tracker.deliver(t_next + latency_us, events)
-        tracker.advance(t_next)
-        if progress is not None and (k + 1) % 100 == 0:
-            progress(100)
+            scene.step(1)
+            t_next = t_us + TICK_US
+            T_now = scene.T_c_o()
+            T_c_o_true.append(T_now)
+            if arms is None:
+                events = source.events_until(t_next, T_now, scene.T_w_c())
+            else:
+                T_w_c = scene.T_w_c()
+                events = source.events_until(t_next, T_now, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
+            if drop is not None and len(events):
+                events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
+            n_events += len(events)
+            tracker.deliver(t_next + latency_us, events)
+            tracker.advance(t_next)
+            if progress is not None and (k + 1) % 100 == 0:
+                progress(100)
     if progress is not None and done % 100:
         progress(done % 100)
 
@@ -396,73 +404,8 @@ def run_episode(
         wall_s=time.perf_counter() - wall0,
         events=n_events,
     )
-    result.watchdog_events = watchdog_events(result)
+    result.watchdog_events = spells_from_flags(result.t_s, result.watchdog, result.est_t_s, result.v_cmd_w)
     return result
-
-
-def watchdog_events(result: EpisodeResult) -> list[WatchdogEvent]:
-    """The watchdog's spells from the per-tick record."""
-    w, t = result.watchdog, result.t_s
-    out = []
-    starts = np.flatnonzero(w & ~np.concatenate([[False], w[:-1]]))
-    for s in starts:
-        after = np.flatnonzero(~w[s:])
-        e = s + after[0] if len(after) else None
-        span = slice(s, e)
-        zero = np.flatnonzero(~np.any(result.v_cmd_w[span], axis=1))
-        out.append(
-            WatchdogEvent(
-                start_s=float(t[s]),
-                last_pose_s=float(result.est_t_s[s]),
-                zero_s=float(t[s + zero[0]]) if len(zero) else None,
-                end_s=float(t[e]) if e is not None else None,
-            )
-        )
-    return out
-
-
-def pose_errors(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Translation distance (m) and geodesic angle (rad) between pose stacks ``A`` and ``B`` (N, 4, 4)."""
-    pos = np.linalg.norm(A[:, :3, 3] - B[:, :3, 3], axis=1)
-    tr = np.einsum("nji,nji->n", A[:, :3, :3], B[:, :3, :3])  # trace(Aᵀ B)
-    return pos, np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
-
-
-def camera_rotation_rad(T_w_c: np.ndarray) -> np.ndarray:
-    """Geodesic angle (rad) of each camera orientation in ``T_w_c`` (N, 4, 4) from the first one."""
-    if not len(T_w_c):
-        return np.zeros(0)
-    tr = np.einsum("ji,nji->n", T_w_c[0, :3, :3], T_w_c[:, :3, :3])
-    return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
-
-
-def estimate_lag_s(t_s: np.ndarray, d_lead: np.ndarray, d_follow: np.ndarray, max_lag_s: float = 1.0) -> float:
-    """How far ``d_follow`` (N, 3) trails ``d_lead`` (N, 3), both sampled at uniform times ``t_s``:
-    the shift maximising their normalised cross-correlation (summed over the axes, means removed),
-    searched in ``[−max_lag_s/2, max_lag_s]`` and refined by a parabola through the peak. NaN if
-    either signal is flat."""
-    dt = float(t_s[1] - t_s[0])
-    a = d_lead - d_lead.mean(axis=0)
-    b = d_follow - d_follow.mean(axis=0)
-    if np.sum(a * a) < 1e-12 or np.sum(b * b) < 1e-12:
-        return float("nan")
-    max_k = min(round(max_lag_s / dt), len(a) // 2)
-    lags = np.arange(-max_k // 2, max_k + 1)
-    c = np.empty(len(lags))
-    for i, L in enumerate(lags):
-        x, y = (a[: len(a) - L], b[L:]) if L >= 0 else (a[-L:], b[: len(b) + L])
-        c[i] = np.sum(x * y) / np.sqrt(np.sum(x * x) * np.sum(y * y))
-    i = int(np.argmax(c))
-    shift = 0.0
-    if 0 < i < len(c) - 1:
-        den = c[i - 1] - 2 * c[i] + c[i + 1]
-        shift = 0.5 * (c[i - 1] - c[i + 1]) / den if den < 0 else 0.0
-    return float((lags[i] + shift) * dt)
-
-
-def rms(x: np.ndarray) -> float:
-    """Root mean square of ``x``; NaN when empty."""
-    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
 
 
 def summarize(result: EpisodeResult) -> dict:
@@ -478,13 +421,14 @@ def summarize(result: EpisodeResult) -> dict:
     # The truth at each estimate's own time stamp (nearest tick).
     idx = np.clip(np.round(r.est_t_s / (TICK_US * 1e-6)).astype(int), 0, max(n - 1, 0))
     k_pos, k_rot = pose_errors(r.T_c_o_est, truth[idx])
-    cam_rot = camera_rotation_rad(r.T_w_c)
+    cam_rot = rotation_from_first_rad(r.T_w_c)
     d_obj = r.T_w_o[:, :3, 3] - r.T_w_o[:1, :3, 3]
     d_cam = r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3]
     sim_s = n * TICK_US * 1e-6
     n_steps = sum(r.steps.values())
     return {
         "completed": r.ended == "duration",
+        "interrupted": r.ended == INTERRUPTED,
         "ended": r.ended,
         "lost_at_s": r.lost_at_s,
         "simulated_s": sim_s,
@@ -510,86 +454,37 @@ def summarize(result: EpisodeResult) -> dict:
 
 
 def write_outputs(result: EpisodeResult, out_dir: str | Path, summary: dict | None = None) -> dict[str, Path]:
-    """Write ``summary.json``, ``log.csv`` (at ``config.log_rate_hz``) and ``motion.png`` into
-    ``out_dir``; returns their paths by name."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    """Write ``summary.json``, ``log.csv`` (at ``config.log_rate_hz``) and ``motion.png`` (the paper's
+    Fig. 5) into ``out_dir``; returns their paths by name. The summary is written last (and
+    atomically): a ``summary.json`` is there only when the episode's other outputs are."""
+    r, cfg = result, result.config
+    out = make_out_dir(out_dir, stale=OUTPUTS)
     paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
     summary = summary if summary is not None else summarize(result)
-    paths["summary"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
-    _write_log(result, paths["log"])
-    plot_motion(result, paths["motion"])
-    return paths
-
-
-def _write_log(r: EpisodeResult, path: Path) -> None:
-    n = len(r.t_s)
-    every = max(1, round(1.0 / (r.config.log_rate_hz * TICK_US * 1e-6)))
-    k = np.arange(0, n, every)
+    every = max(1, round(1.0 / (cfg.log_rate_hz * TICK_US * 1e-6)))
+    k = np.arange(0, len(r.t_s), every)
     truth = r.T_c_o_true[k]
-    s_pos, s_rot = pose_errors(r.T_c_o_est[k], np.broadcast_to(r.T_c_o_des, (len(k), 4, 4)))
-    g_pos, _ = pose_errors(truth, np.broadcast_to(r.T_c_o_des, (len(k), 4, 4)))
+    des = np.broadcast_to(r.T_c_o_des, (len(k), 4, 4))
+    s_pos, s_rot = pose_errors(r.T_c_o_est[k], des)
+    g_pos, _ = pose_errors(truth, des)
     header = [
         "t_s", "obj_x_m", "obj_y_m", "obj_z_m", "cam_x_m", "cam_y_m", "cam_z_m",
         "est_x_m", "est_y_m", "est_z_m", "true_x_m", "true_y_m", "true_z_m",
         "servo_pos_mm", "servo_rot_deg", "gt_servo_pos_mm", "pose_age_ms",
         "v_cmd_mps", "w_cmd_dps", "v_cam_mps", "watchdog",
     ]  # fmt: skip
-    cols = np.column_stack(
-        [
-            r.t_s[k],
-            r.T_w_o[k, :3, 3],
-            r.T_w_c[k, :3, 3],
-            r.T_c_o_est[k, :3, 3],
-            truth[:, :3, 3],
-            s_pos * 1e3,
-            np.rad2deg(s_rot),
-            g_pos * 1e3,
-            (r.t_s[k] - r.est_t_s[k]) * 1e3,
-            np.linalg.norm(r.v_cmd_w[k, :3], axis=1),
-            np.rad2deg(np.linalg.norm(r.v_cmd_w[k, 3:], axis=1)),
-            np.linalg.norm(r.v_cam_w[k, :3], axis=1),
-            r.watchdog[k].astype(float),
-        ]
+    cols = np.column_stack([
+        r.t_s[k], r.T_w_o[k, :3, 3], r.T_w_c[k, :3, 3], r.T_c_o_est[k, :3, 3], truth[:, :3, 3], s_pos * 1e3,
+        np.rad2deg(s_rot), g_pos * 1e3, (r.t_s[k] - r.est_t_s[k]) * 1e3, np.linalg.norm(r.v_cmd_w[k, :3], axis=1),
+        np.rad2deg(np.linalg.norm(r.v_cmd_w[k, 3:], axis=1)), np.linalg.norm(r.v_cam_w[k, :3], axis=1),
+        r.watchdog[k].astype(float),
+    ])  # fmt: skip
+    write_log(paths["log"], header, cols)
+    title = f"{cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s" + (
+        ", feed-forward" if cfg.feedforward else ""
     )
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows([[f"{v:.6g}" for v in row] for row in cols])
-
-
-def plot_motion(r: EpisodeResult, path: str | Path) -> None:
-    """The paper's Fig. 5: camera and object displacement along each world axis from their start
-    poses (mm), the object also as reconstructed from the camera pose and the estimate (what the
-    paper could plot), and the camera's rotation in the world from its start orientation (deg)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = r.t_s
-    d_obj = (r.T_w_o[:, :3, 3] - r.T_w_o[:1, :3, 3]) * 1e3
-    d_cam = (r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3]) * 1e3
-    recon = r.T_w_c @ r.T_c_o_est
-    d_rec = (recon[:, :3, 3] - recon[:1, :3, 3]) * 1e3
-    cam_rot = np.rad2deg(camera_rotation_rad(r.T_w_c))
-    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(8, 8), constrained_layout=True)
-    for i, name in enumerate("xyz"):
-        ax = axes[i]
-        ax.plot(t, d_cam[:, i], color="tab:blue", label="camera")
-        ax.plot(t, d_obj[:, i], color="tab:orange", label="object (true)")
-        ax.plot(t, d_rec[:, i], color="tab:orange", ls=":", lw=1, label="object (camera · estimate)")
-        ax.set_ylabel(f"{name} (mm)")
-        ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[3].plot(t, cam_rot, color="tab:blue")
-    axes[3].set_ylabel("camera rot. (deg)")
-    axes[3].set_xlabel("time since servo start (s)")
-    axes[3].grid(alpha=0.3)
-    cfg = r.config
-    fig.suptitle(
-        f"{cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s"
-        + (", feed-forward" if cfg.feedforward else "")
+    plot_motion(
+        paths["motion"], r.t_s, r.T_w_c, r.T_w_c @ r.T_c_o_est, title, T_w_o_true=r.T_w_o, spells=r.watchdog_events
     )
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    write_summary(paths["summary"], summary)
+    return paths
