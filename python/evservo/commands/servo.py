@@ -35,6 +35,7 @@ def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> Non
     Sim-only options parse to None when not given, so ``--robot`` can tell they were."""
     from dataclasses import fields
 
+    from evservo.commands.track import add_viewer_arguments
     from evservo.sim.episode import COST_MODELS, EpisodeConfig
     from evservo.tracking import SOLVERS
 
@@ -71,6 +72,7 @@ def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> Non
         help="also draw the UR5e and Panda arms into the rendered event camera (needs --events render)",
     )
     p.add_argument("--out", type=Path, help="output directory (summary.json, log.csv, motion.png)")
+    add_viewer_arguments(p)
 
 
 def sim_options_given(args: argparse.Namespace) -> list[str]:
@@ -95,6 +97,7 @@ def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
 
     from evservo.outputs import prepare_out_dir
     from evservo.sim.episode import OUTPUTS, run_episode, summarize, write_outputs
+    from evservo.viewer import open_viewer
 
     cfg = config_from_args(args)
     # Checked, and cleared of an earlier run's files, before the run: never fails after it.
@@ -103,8 +106,13 @@ def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
         f"servo (sim): {cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s, "
         f"{cfg.duration_s} s, feed-forward {'on' if cfg.feedforward else 'off'}, cost model {cfg.cost_model}"
     )
-    with tqdm(total=round(cfg.duration_s * 1000), unit="ms", desc="simulated", leave=False) as bar:
-        result = run_episode(cfg, progress=bar.update)
+    viewer = open_viewer(args.viewer, args.viewer_save)
+    try:
+        with tqdm(total=round(cfg.duration_s * 1000), unit="ms", desc="simulated", leave=False) as bar:
+            result = run_episode(cfg, progress=bar.update, viewer=viewer)
+    finally:
+        if viewer is not None:
+            viewer.close()
     summary = summarize(result)
     paths = write_outputs(result, out, summary)
     print_summary(summary)
@@ -135,6 +143,8 @@ def print_summary(s: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.sim and (args.viewer or args.viewer_save):
+        raise ValueError("--viewer and --viewer-save apply to --sim (and evservo track), not yet to the real loop")
     if not args.sim:
         from evservo.commands.servo_real import run_real
 

@@ -71,7 +71,9 @@ def _viewer_file(save: str | None, solver: str, compare: bool) -> str | None:
 
 def add_viewer_arguments(p: argparse.ArgumentParser) -> None:
     """``--viewer`` and ``--viewer-save`` (shared by track and servo)."""
-    p.add_argument("--viewer", choices=("rerun",), help="show the run live in rerun's web viewer (pip install 'evservo[viewer]')")
+    p.add_argument(
+        "--viewer", choices=("rerun",), help="show the run live in rerun's web viewer (pip install 'evservo[viewer]')"
+    )
     p.add_argument("--viewer-save", metavar="RUN.rrd", help="write the rerun recording to this .rrd file")
 
 
