@@ -35,6 +35,8 @@ __all__ = ["VIEWERS", "RerunViewer", "open_viewer"]
 VIEWERS = ("rerun",)
 #: Sensor time between two logged frames (µs): 30 Hz.
 DEFAULT_PERIOD_US = 33_333
+#: Port of rerun's web viewer on this machine.
+WEB_PORT = 9090
 _INSTALL_HINT = "the rerun viewer needs rerun-sdk: pip install 'evservo[viewer]' (or make viewer)"
 
 
@@ -46,6 +48,8 @@ def open_viewer(kind: str | None, save: str | Path | None, *, spawn: bool = True
         return None
     if kind is not None and kind not in VIEWERS:
         raise ValueError(f"unknown viewer {kind!r}; choose one of {VIEWERS}")
+    if save is not None and Path(save).suffix != ".rrd":
+        raise ValueError(f"--viewer-save needs a .rrd file name, got {save}")
     return RerunViewer(save=save, serve=kind is not None and spawn)
 
 
@@ -62,8 +66,6 @@ class RerunViewer:
             raise ValueError(_INSTALL_HINT) from e
         if save is None and not serve:
             raise ValueError("a viewer needs somewhere to send the recording: save= or serve=True")
-        if save is not None and Path(save).suffix != ".rrd":
-            raise ValueError(f"--viewer-save needs a .rrd file name, got {save}")
         self._rr = rr
         self._camera: _evcore.Camera | None = None
         self._period_us = period_us
@@ -72,8 +74,9 @@ class RerunViewer:
             self._rec.save(str(save))
         if serve:
             url = self._rec.serve_grpc()
-            rr.serve_web_viewer(connect_to=url, open_browser=False)
-            print(f"viewer: rerun's web viewer is serving this run (recording at {url})")
+            rr.serve_web_viewer(web_port=WEB_PORT, connect_to=url, open_browser=False)
+            # Served from this process: the page shows the run while it lasts (--viewer-save keeps it).
+            print(f"viewer: open http://127.0.0.1:{WEB_PORT} (rerun web viewer, recording at {url})")
         self._next_us: int | None = None
         self._pending: list[np.ndarray] = []
         self._logged = 0
