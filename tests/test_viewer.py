@@ -59,8 +59,9 @@ def test_tracking_run_reads_back_from_the_rrd(small_rec, tmp_path):
     frames = len(np.unique(poses["t_us"].astype(np.int64) // viewer.DEFAULT_PERIOD_US))
     assert frames >= 6
     rows = _rows_per_entity(_rrd_print(rrd, "-v"))
-    for entity in ("/camera/events", "/camera/sstar", "/field/distance", "/field/sstar", "/world/object",
-                   "/world/object_true", "/errors/track_pos_mm", "/errors/track_rot_deg", "/tracking/lost"):  # fmt: skip
+    streams = ("/camera/events", "/camera/sstar", "/field/distance", "/field/sstar", "/world/object",
+               "/world/object_true", "/errors/track_pos_mm", "/errors/track_rot_deg", "/tracking/lost")  # fmt: skip
+    for entity in streams:
         assert rows.get(entity) == frames, (entity, rows)
     assert rows["/world/camera"] == frames + 1  # the pinhole, static, plus one pose per frame
     logged = _scalars(_rrd_print(rrd, "-vvv"), "/errors/track_pos_mm")
