@@ -12,6 +12,8 @@ __all__ = [
     "Camera",
     "DecodeError",
     "Estimate",
+    "Evt3Decoder",
+    "Evt3Encoder",
     "EventSimulator",
     "Mesh",
     "RawReader",
@@ -211,14 +213,16 @@ class RawReader:
     def read_n_events(self, n: int) -> dict[str, npt.NDArray[Any]] | None: ...
     def read_until(self, t_us: int) -> dict[str, npt.NDArray[Any]] | None: ...
 
+@final
 class Evt3Decoder:
-    def __init__(self, width: int, height: int) -> None: ...
+    def __new__(cls, width: int, height: int) -> Evt3Decoder: ...
     def decode(self, data: bytes) -> dict[str, npt.NDArray[Any]]: ...
     @property
     def pending_bytes(self) -> int: ...
 
+@final
 class Evt3Encoder:
-    def __init__(self, width: int, height: int) -> None: ...
+    def __new__(cls, width: int, height: int) -> Evt3Encoder: ...
     def encode(
         self,
         x: npt.NDArray[np.uint16],
