@@ -287,3 +287,16 @@ def test_streaming_codec_bindings_carry_state_across_calls():
         np.testing.assert_array_equal(np.concatenate([c[f] for c in cols]), ev[f])
     with pytest.raises(ValueError, match="polarity 3"):
         enc.encode(*(np.array([v], dtype=d) for v, d in [(1, "u2"), (1, "u2"), (3, "i2"), (ev["t"][-1], "i8")]))
+
+
+def test_tracking_a_bag_equals_tracking_the_raw_file(tmp_path):
+    from evservo.cli import main
+
+    _, ref = evt3_sample()
+    io.write_events(tmp_path / "bag", ref, 1280, 720)
+    common = ["--model", "box", "--init-pose", "0,0,0.6,0,0,0,1", "--max-seconds", "0.004", "--quiet"]
+    assert main(["track", str(EVT3_FILE), *common, "--out", str(tmp_path / "raw")]) == 0
+    assert main(["track", str(tmp_path / "bag"), *common, "--out", str(tmp_path / "bagout")]) == 0
+    raw = (tmp_path / "raw" / "poses.csv").read_text()
+    assert raw.count("\n") == 6  # header + 5 updates (1 ms slices over 4 ms of the grid)
+    assert (tmp_path / "bagout" / "poses.csv").read_text() == raw
