@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 export VIRTUAL_ENV := $(abspath $(VENV))
 export PATH := $(abspath $(BIN)):$(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: setup build demo test test-rust test-python stubtest bench lint fmt clean
+.PHONY: setup build demo test test-rust test-python stubtest bench lint fmt clean viewer
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,10 @@ build: $(VENV)/.deps
 	$(BIN)/maturin develop --release -q
 
 setup: build
+
+# The optional live viewer (rerun-sdk, about 700 MB): `evservo track|servo --viewer rerun`.
+viewer: setup
+	$(BIN)/python -m pip install -q rerun-sdk==0.41.0
 
 demo: setup
 	$(BIN)/evservo demo

@@ -15,6 +15,8 @@ __all__ = [
     "DecodeError",
     "Estimate",
     "EventSimulator",
+    "Evt3Decoder",
+    "Evt3Encoder",
     "Mesh",
     "RawReader",
     "SimCamera",
@@ -216,3 +218,21 @@ class RawReader:
     header: list[tuple[str, str]]
     def read_n_events(self, n: int) -> dict[str, npt.NDArray[Any]] | None: ...
     def read_until(self, t_us: int) -> dict[str, npt.NDArray[Any]] | None: ...
+
+@final
+class Evt3Decoder:
+    def __new__(cls, width: int, height: int) -> Evt3Decoder: ...
+    def decode(self, data: bytes) -> dict[str, npt.NDArray[Any]]: ...
+    @property
+    def pending_bytes(self) -> int: ...
+
+@final
+class Evt3Encoder:
+    def __new__(cls, width: int, height: int) -> Evt3Encoder: ...
+    def encode(
+        self,
+        x: npt.NDArray[np.uint16],
+        y: npt.NDArray[np.uint16],
+        p: npt.NDArray[np.int16],
+        t: npt.NDArray[np.int64],
+    ) -> bytes: ...

@@ -92,7 +92,7 @@ impl PyRawReader {
     }
 }
 
-fn columns(py: Python<'_>, b: EventBatch) -> PyResult<Bound<'_, PyDict>> {
+pub(crate) fn columns(py: Python<'_>, b: EventBatch) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("x", b.x.into_pyarray(py))?;
     d.set_item("y", b.y.into_pyarray(py))?;

@@ -5,6 +5,7 @@ use pyo3::prelude::*;
 
 mod camera;
 mod errors;
+mod evt3;
 mod field;
 mod io;
 mod model;
@@ -24,5 +25,6 @@ fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     simcam::register(m)?;
     model::register(m)?;
     io::register(m)?;
+    evt3::register(m)?;
     Ok(())
 }

@@ -37,6 +37,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -319,10 +320,14 @@ def _cost_model(config: EpisodeConfig) -> Callable[[str, float], float]:
 
 
 def run_episode(
-    config: EpisodeConfig, scene: DualArmScene | None = None, progress: Callable[[int], None] | None = None
+    config: EpisodeConfig,
+    scene: DualArmScene | None = None,
+    progress: Callable[[int], None] | None = None,
+    viewer: Any = None,
 ) -> EpisodeResult:
     """Run one closed-loop episode; ``progress`` is called with the number of simulated
-    milliseconds done since its previous call. ``scene`` may be reused across episodes (it is reset)."""
+    milliseconds done since its previous call. ``scene`` may be reused across episodes (it is reset).
+    ``viewer`` (a :class:`~evservo.viewer.RerunViewer`) is shown every tick; the caller closes it."""
     cfg = config
     wall0 = time.perf_counter()
     scene = scene or DualArmScene()
@@ -430,6 +435,10 @@ def run_episode(
             if drop is not None and len(events):
                 events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
             n_events += len(events)
+            if viewer is not None:
+                # The tick's poses (before the step), with the events simulated over it.
+                T_w_c_k, T_w_o_k = rec["T_w_c"][k], rec["T_w_o"][k]
+                viewer.servo(t_us, events, est, core, T_w_c=T_w_c_k, T_c_o_des=T_c_o_des, T_w_o_true=T_w_o_k)
             tracker.deliver(t_next + latency_us, events)
             tracker.advance(t_next)
             if progress is not None and (k + 1) % 100 == 0:
