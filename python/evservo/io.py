@@ -50,17 +50,10 @@ import numpy as np
 
 from evservo import aedat4
 from evservo._evcore import DecodeError, RawReader
+from evservo.events import EVENT_CD
 
 __all__ = ["EVENT_CD", "DecodeError", "info", "open_events", "read_events", "write_events"]
 
-EVENT_CD = np.dtype(
-    {
-        "names": ["x", "y", "p", "t"],
-        "formats": ["<u2", "<u2", "<i2", "<i8"],
-        "offsets": [0, 2, 4, 8],
-        "itemsize": 16,
-    }
-)
 
 #: HDF5 filter id of Prophesee's ECF codec used by Metavision HDF5 files.
 ECF_FILTER_ID = 0x8ECF
