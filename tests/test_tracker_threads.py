@@ -2,7 +2,6 @@
 failed thread spawns, reads before the first update, live counters."""
 
 import os
-import resource
 import subprocess
 import sys
 import threading
@@ -105,7 +104,7 @@ def test_latest_and_push_race_start_and_stop_without_borrow_errors(camera, still
             except RuntimeError as e:
                 if "call start() first" not in str(e):  # pushing while stopped is a clear error
                     errors.append(e)
-            except BaseException as e:  # noqa: BLE001 - any other failure is the defect
+            except BaseException as e:  # any other failure is the defect
                 errors.append(e)
 
     th = threading.Thread(target=producer)
