@@ -199,26 +199,20 @@ def _load_array(p: Path, suffix: str) -> tuple[np.ndarray, int, int, bool, str]:
 
 def _raw_blocks(p: Path, n: int) -> Iterator[np.ndarray]:
     reader = RawReader(p)
-    while (cols := reader.read_n_events(n)) is not None:
-        yield _columns_to_cd(cols)
+    while (block := reader.read_n_events(n)) is not None:
+        yield block
 
 
 def _raw_time_slices(p: Path, delta_t_us: int) -> Iterator[np.ndarray]:
+    """Time slices cut in Rust: each slice is one array handed over from the decoder, no copies here."""
     reader = RawReader(p)
-    first = reader.read_n_events(1)
+    first = reader.peek_t()
     if first is None:
         return
-    head = _columns_to_cd(first)
-    end = (int(head["t"][0]) // delta_t_us + 1) * delta_t_us
-    while (cols := reader.read_until(end)) is not None:
-        chunk = _columns_to_cd(cols)
-        if head is not None:
-            chunk = np.concatenate([head, chunk], dtype=EVENT_CD)
-            head = None
+    end = (first // delta_t_us + 1) * delta_t_us
+    while (chunk := reader.read_until(end)) is not None:
         yield chunk
         end += delta_t_us
-    if head is not None:
-        yield head
 
 
 def _is_our_h5(p: Path) -> bool:
@@ -343,9 +337,7 @@ def read_events(path: str | os.PathLike) -> np.ndarray:
     """All events of a file as one EVENT_CD array, in stream order."""
     p, suffix = _checked_path(path)
     if suffix == ".raw":
-        blocks = list(_raw_blocks(p, _RAW_BLOCK_EVENTS))
-        # numpy would otherwise drop EVENT_CD's padding and return a packed 14-byte dtype.
-        return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
+        return RawReader(p).read_all()
     if suffix == _AEDAT_SUFFIX:
         blocks = list(aedat4.iter_blocks(p))
         return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
@@ -363,11 +355,11 @@ def info(path: str | os.PathLike) -> dict:
     if suffix == ".raw":
         reader = RawReader(p)
         n, t_first, t_last = 0, None, None
-        while (cols := reader.read_n_events(_RAW_BLOCK_EVENTS)) is not None:
-            if len(cols["t"]):
-                t_first = int(cols["t"][0]) if t_first is None else t_first
-                t_last = int(cols["t"][-1])
-                n += len(cols["t"])
+        while (block := reader.read_n_events(_RAW_BLOCK_EVENTS)) is not None:
+            if len(block):
+                t_first = int(block["t"][0]) if t_first is None else t_first
+                t_last = int(block["t"][-1])
+                n += len(block)
         return dict(
             format=reader.format, width=reader.width, height=reader.height, n_events=n,
             t_first_us=t_first, t_last_us=t_last, geometry_inferred=False,

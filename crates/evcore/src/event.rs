@@ -89,6 +89,40 @@ impl EventRecords for EventBatch {
     }
 }
 
+/// Where decoded events go: columns ([`EventBatch`]) or records (`Vec<EventCd>`).
+pub trait EventSink {
+    /// Append events `range` of `batch`.
+    fn extend_from_batch(&mut self, batch: &EventBatch, range: std::ops::Range<usize>);
+}
+
+impl EventSink for EventBatch {
+    fn extend_from_batch(&mut self, b: &EventBatch, r: std::ops::Range<usize>) {
+        self.x.extend_from_slice(&b.x[r.clone()]);
+        self.y.extend_from_slice(&b.y[r.clone()]);
+        self.p.extend_from_slice(&b.p[r.clone()]);
+        self.t_us.extend_from_slice(&b.t_us[r]);
+    }
+}
+
+impl EventSink for Vec<EventCd> {
+    fn extend_from_batch(&mut self, b: &EventBatch, r: std::ops::Range<usize>) {
+        let (x, y, p, t) = (
+            &b.x[r.clone()],
+            &b.y[r.clone()],
+            &b.p[r.clone()],
+            &b.t_us[r],
+        );
+        self.reserve(x.len());
+        self.extend(
+            x.iter()
+                .zip(y)
+                .zip(p)
+                .zip(t)
+                .map(|(((&x, &y), &p), &t)| EventCd::new(x, y, p, t)),
+        );
+    }
+}
+
 /// Largest accepted |t| (µs): 2^53 µs is 285 years, so any clock (sensor counter, Unix time in
 /// µs) fits, while a garbage word such as 2^63 − 1 is refused instead of ending the time line.
 pub const MAX_ABS_T_US: i64 = 1 << 53;
@@ -231,9 +265,9 @@ impl EventBatch {
 
     /// The events as records, in order.
     pub fn to_records(&self) -> Vec<EventCd> {
-        (0..self.len())
-            .map(|i| EventCd::new(self.x[i], self.y[i], self.p[i], self.t_us[i]))
-            .collect()
+        let mut out = Vec::new();
+        out.extend_from_batch(self, 0..self.len());
+        out
     }
 }
 
