@@ -225,7 +225,7 @@ def test_topics_are_listed_and_chosen(tmp_path):
     store = _store()
     String = store.types["std_msgs/msg/String"]
     enc = Evt3Encoder(640, 480)
-    second = enc.encode(ev["x"].copy(), ev["y"].copy(), ev["p"].copy(), ev["t"].copy())
+    second = enc.encode(ev)
     write_bag(tmp_path / "bag", {
         "/cam_a/events": (bags.EVENT_PACKET, evt3_packets(data, np.array([1000, 5000]), 1280, 720)),
         "/cam_b/events": (bags.EVENT_PACKET, evt3_packets(second, np.array([64]), 640, 480)),
@@ -267,9 +267,7 @@ def test_bad_bags_raise_clear_errors(tmp_path):
     with pytest.raises(DecodeError, match="'evt2' is not supported"):
         io.read_events(tmp_path / "enc")
     # An EVT3 event beyond the declared 640x480 sensor.
-    off = Evt3Encoder(1280, 720).encode(
-        *(np.array([v], dtype=d) for v, d in [(900, "u2"), (5, "u2"), (1, "i2"), (10, "i8")])
-    )
+    off = Evt3Encoder(1280, 720).encode(np.array([(900, 5, 1, 10)], dtype=io.EVENT_CD))
     write_bag(tmp_path / "off", {"/e": (bags.EVENT_PACKET, [packet(off, "evt3", 640, 480)])})
     with pytest.raises(DecodeError, match="outside the 640x480 sensor"):
         io.read_events(tmp_path / "off")
@@ -278,15 +276,15 @@ def test_bad_bags_raise_clear_errors(tmp_path):
 def test_streaming_codec_bindings_carry_state_across_calls():
     ev = synthetic_events(2000, seed=5)
     enc = Evt3Encoder(640, 480)
-    parts = [enc.encode(*(np.ascontiguousarray(c[f]) for f in "xypt")) for c in np.array_split(ev, 4)]
+    parts = [enc.encode(np.ascontiguousarray(c)) for c in np.array_split(ev, 4)]
     data = b"".join(parts)
     dec = Evt3Decoder(640, 480)
-    cols = [dec.decode(data[:1]), dec.decode(data[1:777]), dec.decode(data[777:])]
+    chunks = [dec.decode(data[:1]), dec.decode(data[1:777]), dec.decode(data[777:])]
     assert dec.pending_bytes == 0
-    for f in "xypt":
-        np.testing.assert_array_equal(np.concatenate([c[f] for c in cols]), ev[f])
+    assert all(c.dtype == io.EVENT_CD for c in chunks)
+    np.testing.assert_array_equal(np.concatenate(chunks), ev)
     with pytest.raises(ValueError, match="polarity 3"):
-        enc.encode(*(np.array([v], dtype=d) for v, d in [(1, "u2"), (1, "u2"), (3, "i2"), (ev["t"][-1], "i8")]))
+        enc.encode(np.array([(1, 1, 3, ev["t"][-1])], dtype=io.EVENT_CD))
 
 
 def test_tracking_a_bag_equals_tracking_the_raw_file(tmp_path):

@@ -93,7 +93,8 @@ def test_threaded_tracker_follows_and_stops(camera, box_sequence):
     """The solver thread runs on its own; the producer paces itself like a live camera by waiting
     (with a timeout, never blocking inside push) until a cycle has run on each batch."""
     T0, batches, truth = box_sequence
-    trk = evservo.Tracker(camera, "box", T0)
+    # Every event kept (no overload thinning), so the counts below are exact.
+    trk = evservo.Tracker(camera, "box", T0, ingest_core_share=None)
     n = 300
     with trk:
         trk.start()
@@ -109,7 +110,9 @@ def test_threaded_tracker_follows_and_stops(camera, box_sequence):
     assert est.seq >= 5 * n and est.t_us == batches[n - 1]["t"][-1]
     assert est.n_events == sum(len(b) for b in batches[:n])
     assert geometry.translation_error_m(est.T_c_o, truth[n - 1]) < 3e-3
-    assert trk.stats()["events_dropped"] == 0
+    stats = trk.stats()
+    assert stats["events_dropped"] == 0
+    assert stats["events_offered"] == stats["events_ingested"] == est.n_events
 
 
 def test_bad_input_raises_and_leaves_the_tracker_usable(camera, box_sequence):

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from evservo._evcore import DecodeError, Evt3Decoder, Evt3Encoder
+from evservo.events import from_columns
 
 __all__ = ["DEFAULT_TOPIC", "EVENT_PACKET", "EVENT_TYPES", "PACKET_US", "event_topic", "is_bag", "topics", "write"]
 
@@ -201,9 +202,7 @@ def _encoding(msg: Any) -> str:
     return str(msg.encoding) if hasattr(msg, "encoding") else "event-array"
 
 
-def _blocks(
-    path: Path, reader: Any, first: Any, messages: Iterator[Any], meta: dict[str, Any]
-) -> Iterator[dict[str, np.ndarray]]:
+def _blocks(path: Path, reader: Any, first: Any, messages: Iterator[Any], meta: dict[str, Any]) -> Iterator[np.ndarray]:
     try:
         if first is None:
             return
@@ -216,10 +215,10 @@ def _blocks(
 
 
 def _decoder(path: Path, meta: dict[str, Any]) -> Any:
-    """The function turning one message of the topic into event columns."""
+    """The function turning one message of the topic into an EVENT_CD array."""
     encoding = meta["encoding"]
     if meta["type"] != EVENT_PACKET:
-        return _event_array_columns
+        return lambda msg: from_columns(_event_array_columns(msg))
     if encoding == "evt3":
         try:
             stream = Evt3Decoder(meta["width"], meta["height"])
@@ -227,7 +226,7 @@ def _decoder(path: Path, meta: dict[str, Any]) -> Any:
             raise DecodeError(f"{path}: {e}") from e
         return lambda msg: stream.decode(_payload(msg))
     if encoding == "mono":
-        return lambda msg: _mono_columns(path, msg)
+        return lambda msg: from_columns(_mono_columns(path, msg))
     raise DecodeError(f"{path}: EventPacket encoding {encoding!r} is not supported (evt3, mono)")
 
 
@@ -285,10 +284,7 @@ def write(path: str | Path, events: np.ndarray, width: int, height: int, topic: 
     bounds = _packet_bounds(events["t"])
     for start, stop in zip(bounds, [*bounds[1:], len(events)], strict=True):
         chunk = events[start:stop]
-        data = encoder.encode(
-            np.ascontiguousarray(chunk["x"]), np.ascontiguousarray(chunk["y"]),
-            np.ascontiguousarray(chunk["p"]), np.ascontiguousarray(chunk["t"]),
-        )  # fmt: skip
+        data = encoder.encode(np.ascontiguousarray(chunk))
         packets.append((int(chunk["t"].max()) if len(chunk) else 0, int(chunk["t"][0]) if len(chunk) else 0, data))
     bare = p.suffix.lower() == _MCAP_SUFFIX
     if not bare and p.exists():

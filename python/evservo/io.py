@@ -56,20 +56,12 @@ import numpy as np
 
 from evservo import aedat4, bags
 from evservo._evcore import DecodeError, RawReader
-from evservo.events import lossless_column
+from evservo.events import EVENT_CD, from_columns, lossless_column
 from evservo.inputs import require_regular_file
 from evservo.outputs import atomic_path
 
 __all__ = ["EVENT_CD", "DecodeError", "info", "open_events", "read_events", "write_events"]
 
-EVENT_CD = np.dtype(
-    {
-        "names": ["x", "y", "p", "t"],
-        "formats": ["<u2", "<u2", "<i2", "<i8"],
-        "offsets": [0, 2, 4, 8],
-        "itemsize": 16,
-    }
-)
 
 #: HDF5 filter id of Prophesee's ECF codec used by Metavision HDF5 files.
 ECF_FILTER_ID = 0x8ECF
@@ -114,13 +106,6 @@ def _checked_path(path: str | os.PathLike, topic: str | None = None) -> tuple[Pa
     if suffix not in _SUFFIXES:
         raise ValueError(f"unsupported event file extension {suffix!r} for {p} (supported: {', '.join(_SUFFIXES)})")
     return require_regular_file(p, "event file"), suffix
-
-
-def _columns_to_cd(cols: dict) -> np.ndarray:
-    out = np.empty(len(cols["t"]), dtype=EVENT_CD)
-    for name in EVENT_CD.names:
-        out[name] = lossless_column(name, cols[name])
-    return out
 
 
 def _as_cd(events: np.ndarray) -> np.ndarray:
@@ -220,7 +205,7 @@ def _load_h5(p: Path) -> tuple[np.ndarray, int, int, bool, str]:
         with f:
             if "events" in f and isinstance(f["events"], h5py.Group):
                 g = f["events"]
-                events = _columns_to_cd(_h5_columns(p, g))
+                events = from_columns(_h5_columns(p, g))
                 return events, *_stored_geometry(p, g.attrs["width"], g.attrs["height"]), False, "hdf5"
             if "CD/events" in f:
                 ds = f["CD/events"]
@@ -253,26 +238,20 @@ def _load_array(p: Path, suffix: str) -> tuple[np.ndarray, int, int, bool, str]:
 
 def _raw_blocks(p: Path, n: int) -> Iterator[np.ndarray]:
     reader = RawReader(p)
-    while (cols := reader.read_n_events(n)) is not None:
-        yield _columns_to_cd(cols)
+    while (block := reader.read_n_events(n)) is not None:
+        yield block
 
 
 def _raw_time_slices(p: Path, delta_t_us: int) -> Iterator[np.ndarray]:
+    """Time slices cut in Rust: each slice is one array handed over from the decoder, no copies here."""
     reader = RawReader(p)
-    first = reader.read_n_events(1)
+    first = reader.peek_t()
     if first is None:
         return
-    head = _columns_to_cd(first)
-    end = (int(head["t"][0]) // delta_t_us + 1) * delta_t_us
-    while (cols := reader.read_until(end)) is not None:
-        chunk = _columns_to_cd(cols)
-        if head is not None:
-            chunk = np.concatenate([head, chunk], dtype=EVENT_CD)
-            head = None
+    end = (first // delta_t_us + 1) * delta_t_us
+    while (chunk := reader.read_until(end)) is not None:
         yield chunk
         end += delta_t_us
-    if head is not None:
-        yield head
 
 
 def _is_our_h5(p: Path) -> bool:
@@ -290,7 +269,7 @@ def _h5_blocks(p: Path, n: int) -> Iterator[np.ndarray]:
             g = f["events"]
             total = len(g["t"])
             for start in range(0, total, n):
-                yield _columns_to_cd(_h5_columns(p, g, slice(start, start + n)))
+                yield from_columns(_h5_columns(p, g, slice(start, start + n)))
     except DecodeError:
         raise
     except (KeyError, OSError, ValueError, TypeError) as e:
@@ -377,7 +356,7 @@ def open_events(
             raise ValueError(f"delta_t_us must be >= 1, got {delta_t_us}")
     p, suffix = _checked_path(path, topic)
     if suffix == _BAG:
-        blocks = (_columns_to_cd(c) for c in bags.event_blocks(p, topic)[1])
+        blocks = bags.event_blocks(p, topic)[1]
         if n_events is not None:
             return _rechunked(blocks, n_events)
         return _block_time_slices(blocks, delta_t_us)
@@ -405,12 +384,10 @@ def read_events(path: str | os.PathLike, topic: str | None = None) -> np.ndarray
     """All events of a file as one EVENT_CD array, in stream order (``topic``: see :func:`open_events`)."""
     p, suffix = _checked_path(path, topic)
     if suffix == _BAG:
-        blocks = [_columns_to_cd(c) for c in bags.event_blocks(p, topic)[1]]
+        blocks = list(bags.event_blocks(p, topic)[1])
         return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
     if suffix == ".raw":
-        blocks = list(_raw_blocks(p, _RAW_BLOCK_EVENTS))
-        # numpy would otherwise drop EVENT_CD's padding and return a packed 14-byte dtype.
-        return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
+        return RawReader(p).read_all()
     if suffix == _AEDAT_SUFFIX:
         blocks = list(aedat4.iter_blocks(p))
         return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
@@ -432,11 +409,11 @@ def info(path: str | os.PathLike, topic: str | None = None) -> dict:
     if suffix == ".raw":
         reader = RawReader(p)
         n, t_first, t_last = 0, None, None
-        while (cols := reader.read_n_events(_RAW_BLOCK_EVENTS)) is not None:
-            if len(cols["t"]):
-                t_first = int(cols["t"][0]) if t_first is None else t_first
-                t_last = int(cols["t"][-1])
-                n += len(cols["t"])
+        while (block := reader.read_n_events(_RAW_BLOCK_EVENTS)) is not None:
+            if len(block):
+                t_first = int(block["t"][0]) if t_first is None else t_first
+                t_last = int(block["t"][-1])
+                n += len(block)
         return dict(
             format=reader.format, width=reader.width, height=reader.height, n_events=n,
             t_first_us=t_first, t_last_us=t_last, geometry_inferred=False,

@@ -2,12 +2,11 @@
 //! packets (ROS `event_camera_msgs/EventPacket`), decoded and encoded with the GIL released.
 
 use crate::errors::to_py;
-use crate::io::columns;
+use crate::events::{records, to_array, EventArray, PyEventCd};
 use evcore::io::{Evt3Decoder, Evt3Encoder};
 use evcore::EventBatch;
-use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict};
+use pyo3::types::PyBytes;
 
 #[pyclass(name = "Evt3Decoder", module = "evservo._evcore")]
 pub struct PyEvt3Decoder {
@@ -25,18 +24,21 @@ impl PyEvt3Decoder {
         Ok(Self { inner })
     }
 
-    /// The events of the next chunk of the stream as a dict of numpy columns x (u16), y (u16),
-    /// p (i16), t (i64 µs). Events outside the sensor raise DecodeError, and so does every
-    /// later call.
-    fn decode<'py>(&mut self, py: Python<'py>, data: &[u8]) -> PyResult<Bound<'py, PyDict>> {
+    /// The events of the next chunk of the stream as an EVENT_CD array. Events outside the sensor
+    /// raise DecodeError, and so does every later call.
+    fn decode<'py>(
+        &mut self,
+        py: Python<'py>,
+        data: &[u8],
+    ) -> PyResult<Bound<'py, numpy::PyArray1<PyEventCd>>> {
         let dec = &mut self.inner;
         let batch = py
             .detach(|| {
                 let mut out = EventBatch::default();
-                dec.decode(data, &mut out).map(|()| out)
+                dec.decode(data, &mut out).map(|()| out.to_records())
             })
             .map_err(to_py)?;
-        columns(py, batch)
+        Ok(to_array(py, batch))
     }
 
     /// Bytes of an incomplete word held for the next call.
@@ -61,24 +63,19 @@ impl PyEvt3Encoder {
         Ok(Self { inner })
     }
 
-    /// The EVT 3.0 words of events with columns x, y (pixels), p (0/1), t (µs, ≥ 0) continuing
-    /// the stream. Events the format cannot carry back exactly (off the sensor, other
+    /// The EVT 3.0 words of an EVENT_CD array (x, y pixels, p 0/1, t µs ≥ 0) continuing the
+    /// stream. Events the format cannot carry back exactly (off the sensor, other
     /// polarities, negative times, steps back across a 2^24 µs period) raise ValueError and
     /// leave the encoder as it was.
     fn encode<'py>(
         &mut self,
         py: Python<'py>,
-        x: PyReadonlyArray1<'py, u16>,
-        y: PyReadonlyArray1<'py, u16>,
-        p: PyReadonlyArray1<'py, i16>,
-        t: PyReadonlyArray1<'py, i64>,
+        events: EventArray<'py>,
     ) -> PyResult<Bound<'py, PyBytes>> {
-        let batch = EventBatch {
-            x: x.as_array().to_vec(),
-            y: y.as_array().to_vec(),
-            p: p.as_array().to_vec(),
-            t_us: t.as_array().to_vec(),
-        };
+        let mut batch = EventBatch::default();
+        for e in records(&events)? {
+            batch.push(e.x, e.y, e.p, e.t);
+        }
         let enc = &mut self.inner;
         let bytes = py
             .detach(|| {

@@ -5,6 +5,7 @@ use pyo3::prelude::*;
 
 mod camera;
 mod errors;
+mod events;
 mod evt3;
 mod field;
 mod io;
@@ -18,6 +19,7 @@ mod tracker;
 fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("DecodeError", m.py().get_type::<errors::DecodeError>())?;
+    events::register(m)?;
     camera::register(m)?;
     field::register(m)?;
     tracker::register(m)?;
