@@ -205,7 +205,7 @@ def _blocks(
     try:
         if first is None:
             return
-        decode = _decoder(path, meta)
+        decode = message_decoder(meta["type"], meta["encoding"], meta["width"], meta["height"], str(path))
         yield decode(first)
         for msg in messages:
             yield decode(msg)
@@ -213,30 +213,32 @@ def _blocks(
         reader.close()
 
 
-def _decoder(path: Path, meta: dict[str, Any]) -> Any:
-    """The function turning one message of the topic into event columns."""
-    encoding = meta["encoding"]
-    if meta["type"] != EVENT_PACKET:
+def message_decoder(msgtype: str, encoding: str | None, width: int, height: int, where: str) -> Any:
+    """The function turning each message of one event topic, in order, into event columns (for
+    ``evt3`` it carries the stream's decoder state). ``msgtype`` one of :data:`EVENT_TYPES`;
+    ``encoding``, ``width``, ``height`` those of the topic's first message; ``where`` names the
+    source in errors. Messages may come from rosbags or from rclpy."""
+    if msgtype != EVENT_PACKET:
         return _event_array_columns
     if encoding == "evt3":
         try:
-            stream = Evt3Decoder(meta["width"], meta["height"])
+            stream = Evt3Decoder(width, height)
         except ValueError as e:
-            raise DecodeError(f"{path}: {e}") from e
+            raise DecodeError(f"{where}: {e}") from e
         return lambda msg: stream.decode(_payload(msg))
     if encoding == "mono":
-        return lambda msg: _mono_columns(path, msg)
-    raise DecodeError(f"{path}: EventPacket encoding {encoding!r} is not supported (evt3, mono)")
+        return lambda msg: _mono_columns(where, msg)
+    raise DecodeError(f"{where}: EventPacket encoding {encoding!r} is not supported (evt3, mono)")
 
 
 def _payload(msg: Any) -> bytes:
     return np.asarray(msg.events, dtype=np.uint8).tobytes()
 
 
-def _mono_columns(path: Path, msg: Any) -> dict[str, np.ndarray]:
+def _mono_columns(where: str, msg: Any) -> dict[str, np.ndarray]:
     data = _payload(msg)
     if len(data) % 8:
-        raise DecodeError(f"{path}: mono EventPacket of {len(data)} bytes is not a whole number of 8-byte events")
+        raise DecodeError(f"{where}: mono EventPacket of {len(data)} bytes is not a whole number of 8-byte events")
     words = np.frombuffer(data, dtype=">u8" if msg.is_bigendian else "<u8").astype(np.uint64)
     t_ns = np.int64(msg.time_base) + (words & 0xFFFFFFFF).astype(np.int64)
     return dict(

@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from evservo.commands import bench, demo, info, servo, sim, track
+from evservo.commands import bench, demo, info, ros, servo, sim, track
 
 # Each module registers its own subcommand; add new ones here.
-COMMANDS = (bench, demo, info, servo, sim, track)
+COMMANDS = (bench, demo, info, ros, servo, sim, track)
 
 
 def build_parser() -> argparse.ArgumentParser:
