@@ -52,9 +52,12 @@ def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, mon
     assert main(["track", str(small_rec), "--init-pose", init, "--quiet", "--out", str(tmp_path / "offline")]) == 0
     offline = np.genfromtxt(tmp_path / "offline" / "poses.csv", delimiter=",", names=True)
 
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    monkeypatch.setenv("ROS_DOMAIN_ID", env["ROS_DOMAIN_ID"])
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    # Its own domain, this machine only, over UDP (no shared-memory segments left behind by a killed node).
+    ros_env = dict(ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                   FASTDDS_BUILTIN_TRANSPORTS="UDPv4")  # fmt: skip
+    for k, v in ros_env.items():
+        monkeypatch.setenv(k, v)
+    env = dict(os.environ)
     rclpy.init()
     node = rclpy.create_node("evservo_test")
     poses, tfs, status = [], [], []
@@ -69,7 +72,7 @@ def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, mon
     cli = [sys.executable, "-m", "evservo.cli", "ros"]
     track = subprocess.Popen([*cli, "track", "--model", rec.object, "--init-pose", init, "--idle-exit", "2"],
                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
-    play = subprocess.Popen([*cli, "play", str(small_rec)], env=env, stdout=subprocess.PIPE,
+    play = subprocess.Popen([*cli, "play", str(small_rec), "--wait", "60"], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)  # fmt: skip
     try:
         deadline = time.monotonic() + 120

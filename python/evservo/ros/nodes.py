@@ -92,10 +92,8 @@ def play(path: str | Path, topic: str, rate: float = 1.0, packet_us: int = 1000,
             msg.events = encoder.encode(*(np.ascontiguousarray(ev[f]) for f in ("x", "y", "p", "t")))
             pub.publish(msg)
             seq += 1
-        # Give reliable delivery time to drain before the publisher goes away.
-        deadline = time.monotonic() + 2.0
-        while time.monotonic() < deadline and pub.wait_for_all_acked(rclpy.duration.Duration(seconds=0.1)) is False:
-            pass
+        # Reliable delivery drains before the publisher (and its transient-local history) goes away.
+        pub.wait_for_all_acked(rclpy.duration.Duration(seconds=10.0))
         return seq
     finally:
         node.destroy_node()
