@@ -43,7 +43,7 @@ def files(tmp_path):
         (["servo", "--sim", "--trajectory", "{d}/dir.csv", "--out", "{d}/o"], "is a directory"),
         (["sim", "record", "--trajectory", "{d}/dir.csv", "--out", "{d}/a.h5"], "is a directory"),
         (["sim", "record", "--out", "{d}/dir.h5"], "is a directory"),
-        (["track", "{rec}", "--camera", "{d}/neg.yaml", "--out", "{d}/o"], "sensor size -640x360"),
+        (["track", "{rec}", "--camera", "{d}/neg.yaml", "--out", "{d}/o"], "width: must be a whole number of pixels"),
         (["track", "{rec}", "--max-seconds", "-1", "--out", "{d}/o"], "--max-seconds must be"),
         (["track", "{rec}", "--max-seconds", "nan", "--out", "{d}/o"], "--max-seconds must be"),
         (["track", "{d}/dir.h5", "--out", "{d}/o"], "is a directory, not a file"),
@@ -163,3 +163,29 @@ def test_summary_of_bad_input_is_never_written(small_rec, tmp_path):
     out = tmp_path / "o"
     assert main(["track", str(small_rec), "--max-seconds", "nan", "--out", str(out)]) == 2
     assert not out.exists()
+
+
+def test_names_are_parsed_once_in_rust(camera):
+    from evservo import _evcore
+    from evservo.tracking import FRONTENDS, SOLVERS
+
+    assert SOLVERS == ("edft+", "edopts", "edft") == tuple(_evcore.SOLVERS)
+    assert FRONTENDS == ("scarf", "fixed-count", "eros") == tuple(_evcore.FRONTENDS)
+    T = geometry.pose((0, 0, 0.6), (0.35, -0.45, 0.1))
+    for solver in SOLVERS:
+        assert Tracker(camera, "box", T, solver=solver).solver == solver
+    # One spelling each: the aliases Rust used to take are refused there, not in Python.
+    for solver in ("EDFT+", "edftplus", "edopt"):
+        with pytest.raises(ValueError, match="unknown solver"):
+            Tracker(camera, "box", T, solver=solver)
+    for frontend in ("fixed_count", " Fixed-Count ", "SCARF"):
+        with pytest.raises(ValueError, match="unknown front-end"):
+            Tracker(camera, "box", T, frontend=frontend)
+
+
+@pytest.mark.parametrize("args", [["track", "x.h5", "--solver", "EDFT+", "--out", "o"],
+                                  ["servo", "--sim", "--frontend-typo"]])  # fmt: skip
+def test_argument_errors_end_in_one_error_line(args, capsys):
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.splitlines()[-1].startswith("evservo: error:") and "Traceback" not in err

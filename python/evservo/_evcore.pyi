@@ -9,6 +9,8 @@ import numpy.typing as npt
 
 __version__: str
 __all__ = [
+    "FRONTENDS",
+    "SOLVERS",
     "Camera",
     "DecodeError",
     "Estimate",
@@ -35,6 +37,10 @@ _I16: TypeAlias = npt.NDArray[np.int16]
 _I64: TypeAlias = npt.NDArray[np.int64]
 
 class DecodeError(ValueError): ...
+
+#: The solver and front-end names ``Tracker`` accepts: the only spellings.
+SOLVERS: list[str]
+FRONTENDS: list[str]
 
 @final
 class Camera:

@@ -96,12 +96,10 @@ def _typestore() -> Any:
 
 
 def is_bag(path: Path) -> bool:
-    """Whether :mod:`evservo.io` treats ``path`` as a bag: a ``.mcap`` file, a directory holding a
-    rosbag2 ``metadata.yaml``, or any directory without a suffix (reading it then says what is
-    missing); a directory named like an event file (``dir.h5``) is not one."""
-    if path.suffix.lower() == _MCAP_SUFFIX:
-        return True
-    return path.is_dir() and (path.suffix == "" or (path / "metadata.yaml").is_file())
+    """Whether :mod:`evservo.io` treats ``path`` as a bag: a rosbag2 directory or a ``.mcap`` file."""
+    # A directory named like an event file (rec.h5/) is a mistake, not a bag: io says so.
+    bag_dir = path.is_dir() and ((path / "metadata.yaml").is_file() or not path.suffix)
+    return bag_dir or path.suffix.lower() == _MCAP_SUFFIX
 
 
 def _reader(path: Path) -> Any:

@@ -15,8 +15,9 @@ from evservo.events import lossless_column
 from evservo.geometry import as_pose
 from evservo.models import load_object, to_core_mesh
 
-SOLVERS = ("edft+", "edopts", "edft")
-FRONTENDS = ("scarf", "fixed-count", "eros")
+#: The solver and front-end names the core accepts (parsed in Rust only; these lists come from it).
+SOLVERS: tuple[str, ...] = tuple(_evcore.SOLVERS)
+FRONTENDS: tuple[str, ...] = tuple(_evcore.FRONTENDS)
 
 Estimate = _evcore.Estimate
 
@@ -68,10 +69,6 @@ class Tracker:
         levels: int = 3,
         seed: int = 0,
     ) -> None:
-        if solver not in SOLVERS:
-            raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
-        if frontend not in FRONTENDS:
-            raise ValueError(f"unknown front-end {frontend!r}; choose one of {FRONTENDS}")
         T = as_pose(T_c_o, "T_c_o")
         self.camera = camera
         self.solver = solver

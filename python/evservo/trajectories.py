@@ -13,6 +13,7 @@ Kinds (peak speed along x ``speed_mps``, peak angular rate ``rot_rate_dps``):
 - ``figure8``: a Lissajous figure of eight in the x–y plane.
 - ``stop-go``: moves along x for the first half, then stands still (where activity-based
   representations fade and SCARF does not).
+- ``reversal``: along x at constant speed, turning back abruptly at ±amplitude (a triangle wave).
 - a CSV path with header ``t_s,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad`` (displacement, rotation vector),
   interpolated linearly (rotation by slerp) and held constant beyond its ends.
 """
@@ -28,7 +29,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from evservo.inputs import require_regular_file
 
-KINDS = ("trans", "trans-rot", "circle", "figure8", "stop-go")
+KINDS = ("trans", "trans-rot", "circle", "figure8", "stop-go", "reversal")
 CSV_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad")
 
 Trajectory = Callable[[np.ndarray], np.ndarray]
@@ -68,6 +69,10 @@ def make_trajectory(
             trans = np.stack([A * np.sin(w * t), A * (1 - np.cos(w * t)), zeros], axis=1)
         elif kind == "figure8":
             trans = np.stack([A * np.sin(w * t), 0.5 * A * np.sin(2 * w * t), zeros], axis=1)
+        elif kind == "reversal":
+            # arcsin∘sin is a triangle wave of slope ±1: constant speed, reversing at ±A.
+            x = (2 * A / np.pi) * np.arcsin(np.sin(0.5 * np.pi * w * t))
+            trans = np.stack([x, zeros, zeros], axis=1)
         else:  # stop-go: constant speed for the first period's quarter, then rest
             t_stop = 0.5 * A / max(speed_mps, 1e-9)
             x = speed_mps * np.minimum(t, t_stop)

@@ -9,6 +9,7 @@ mod evt3;
 mod field;
 mod io;
 mod model;
+mod pose;
 mod sim;
 mod simcam;
 mod tracker;

@@ -2,8 +2,9 @@
 
 use crate::camera::PyCamera;
 use crate::errors::to_py;
+use crate::pose::pose_arg;
 use evcore::field::FieldParams;
-use evcore::se3::{pose_from_matrix, pose_to_matrix};
+use evcore::se3::pose_to_matrix;
 use evcore::solve::{LmParams, SolverMode, StepKind};
 use evcore::surface::FrontEnd;
 use evcore::tracker::{Estimate, ThreadedTracker, TrackerConfig, TrackerCore};
@@ -79,18 +80,6 @@ fn matrix_to_py<'py>(py: Python<'py>, m: &[[f64; 4]; 4]) -> Bound<'py, PyArray2<
     numpy::ndarray::Array2::from_shape_fn((4, 4), |(i, j)| m[i][j]).into_pyarray(py)
 }
 
-pub fn matrix_from_py(m: &PyReadonlyArray2<'_, f64>) -> PyResult<evcore::Pose> {
-    let a = m.as_array();
-    if a.shape() != [4, 4] {
-        return Err(PyValueError::new_err(format!(
-            "a pose must be a 4x4 matrix, got shape {:?}",
-            a.shape()
-        )));
-    }
-    let arr: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| a[(i, j)]));
-    pose_from_matrix(&arr).map_err(to_py)
-}
-
 /// A field image and the (x0, y0) of its region in the rectified image.
 type FieldWithOrigin<'py> = (Bound<'py, PyArray2<f32>>, (u32, u32));
 
@@ -143,7 +132,7 @@ impl PyTracker {
         lm_iterations: u32,
         roi_margin_px: f64,
     ) -> PyResult<Self> {
-        let pose = matrix_from_py(&T_c_o)?;
+        let pose = pose_arg(&T_c_o)?;
         let pts = points_o.as_array();
         if pts.ncols() != 3 {
             return Err(PyValueError::new_err(format!(
@@ -300,7 +289,7 @@ impl PyTracker {
     /// Re-initialise the pose (4×4 T_c_o); the front-end keeps its events.
     #[allow(non_snake_case)]
     fn reset_pose(&mut self, T_c_o: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
-        let pose = matrix_from_py(&T_c_o)?;
+        let pose = pose_arg(&T_c_o)?;
         self.sync_core()?.reset_pose(pose).map_err(to_py)
     }
 
@@ -370,5 +359,8 @@ impl PyTracker {
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyTracker>()?;
-    m.add_class::<PyEstimate>()
+    m.add_class::<PyEstimate>()?;
+    // The names the Tracker accepts, for Python's command-line choices: parsed here only.
+    m.add("SOLVERS", SolverMode::NAMES)?;
+    m.add("FRONTENDS", FrontEnd::NAMES)
 }

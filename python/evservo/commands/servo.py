@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 # The paper's Tables I and II (RMS servoing error over the run: pos. mm, rot. deg), for comparison.
@@ -25,7 +26,7 @@ PAPER_TABLE = {
 SIM_ONLY = {
     "object": "object", "trajectory": "trajectory", "speed": "speed_mps", "rot_rate": "rot_rate_dps",
     "distance": "distance_m", "seed": "seed", "cost_model": "cost_model", "dropout": "dropout_s",
-    "events": "event_source", "render_arms": "render_arms",
+    "events": "event_source", "render_arms": "render_arms", "predictor": "predictor",
 }  # fmt: skip
 
 
@@ -36,7 +37,7 @@ def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> Non
     from dataclasses import fields
 
     from evservo.commands.track import add_viewer_arguments
-    from evservo.sim.episode import COST_MODELS, EpisodeConfig
+    from evservo.sim.episode import COST_MODELS, PREDICTORS, EpisodeConfig
     from evservo.tracking import SOLVERS
 
     base = {f.name: f.default for f in fields(EpisodeConfig)}
@@ -51,13 +52,34 @@ def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> Non
 
     p.add_argument("--object", help=f"box, drill, football or a mesh path {d('object')}")
     p.add_argument("--tracker", default=base["tracker"], choices=SOLVERS)
-    p.add_argument("--trajectory", help=f"trans, trans-rot, circle, figure8, stop-go or a CSV {d('trajectory')}")
+    p.add_argument(
+        "--trajectory", help=f"trans, trans-rot, circle, figure8, stop-go, reversal or a CSV {d('trajectory')}"
+    )
     p.add_argument("--speed", type=float, help=f"peak target speed, m/s {d('speed_mps')}")
     p.add_argument("--rot-rate", type=float, help=f"peak target rotation rate (trans-rot), deg/s {d('rot_rate_dps')}")
     p.add_argument("--distance", type=float, help=f"camera–object distance Z, m {d('distance_m')}")
     p.add_argument("--duration", type=float, default=base["duration_s"], help="servoing time, s")
     p.add_argument("--seed", type=int, help=f"random seed {d('seed')}")
-    p.add_argument("--feedforward", action="store_true", help="feed the target's velocity and acceleration forward")
+    ff = bool(base["feedforward"])
+    law = p.add_mutually_exclusive_group()
+    law.add_argument(
+        "--feedforward",
+        action="store_true",
+        default=ff,
+        help="our controller: the target's motion fed forward within what the arm can deliver" + " (default)" * ff,
+    )
+    law.add_argument(
+        "--paper-law",
+        dest="feedforward",
+        action="store_false",
+        help="the paper's literal Eq. (5)-(6) loop" + " (default)" * (not ff),
+    )
+    p.add_argument(
+        "--predictor",
+        choices=PREDICTORS,
+        help=f"feed-forward: extrapolate the target across the latencies at constant velocity or acceleration "
+        f"{d('predictor')}",
+    )
     p.add_argument("--cost-model", choices=COST_MODELS, help=f"tracker time charged to the clock {d('cost_model')}")
     p.add_argument("--dropout", type=float, nargs=2, metavar=("START", "END"), help="lose all events in [START, END) s")
     p.add_argument(
@@ -91,22 +113,52 @@ def config_from_args(args: argparse.Namespace):
     return EpisodeConfig(**values, tracker=args.tracker, duration_s=args.duration, feedforward=args.feedforward)
 
 
-def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
-    """Run the episode with a progress bar, write the outputs, print the summary beside the paper."""
-    from tqdm import tqdm
-
+def run_with_report(args: argparse.Namespace, default_out: Path, compare_paper_law: bool = False) -> int:
+    """Run the episode with a progress bar, write the outputs, print the summary beside the paper. With
+    ``compare_paper_law`` and our controller, run the same episode with the paper's literal law too (into
+    ``OUT/paper-law``) and print one line for each and one for the paper's published numbers."""
     from evservo.outputs import prepare_out_dir
-    from evservo.sim.episode import OUTPUTS, run_episode, summarize, write_outputs
-    from evservo.viewer import open_viewer
+    from evservo.sim.episode import OUTPUTS
 
     cfg = config_from_args(args)
+    literal = compare_paper_law and cfg.feedforward
     # Checked, and cleared of an earlier run's files, before the run: never fails after it.
     out = prepare_out_dir(args.out or default_out, stale=OUTPUTS)
+    out_literal = prepare_out_dir(out / "paper-law", stale=OUTPUTS) if literal else None
     print(
         f"servo (sim): {cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s, "
-        f"{cfg.duration_s} s, feed-forward {'on' if cfg.feedforward else 'off'}, cost model {cfg.cost_model}"
+        f"{cfg.duration_s} s, {_law_name(cfg)}, cost model {cfg.cost_model}"
     )
-    viewer = open_viewer(args.viewer, args.viewer_save)
+    summary = _run_and_write(cfg, out, args.viewer, args.viewer_save)
+    print_summary(summary)
+    if summary["interrupted"]:
+        print(f"evservo: interrupted: partial outputs (marked interrupted) in {out}", file=sys.stderr)
+        return 130
+    if out_literal is not None:
+        print(f"\nthe same episode with the paper's literal Eq. (5)-(6) loop, into {out_literal}:")
+        paper_law = _run_and_write(replace(cfg, feedforward=False), out_literal)
+        if paper_law["interrupted"]:
+            print(f"evservo: interrupted: partial outputs (marked interrupted) in {out_literal}", file=sys.stderr)
+            return 130
+        print_comparison(summary, paper_law)
+    return 0
+
+
+def _law_name(cfg) -> str:
+    if cfg.feedforward:
+        return f"our controller (feed-forward within the arm's limits, {cfg.predictor} predictor)"
+    return "the paper's literal Eq. (5)-(6)"
+
+
+def _run_and_write(cfg, out: Path, viewer_kind: str | None = None, viewer_save: str | None = None) -> dict:
+    """Run one episode with a progress bar (and the live viewer, if asked for) and write its outputs
+    into ``out``; returns its summary."""
+    from tqdm import tqdm
+
+    from evservo.sim.episode import run_episode, summarize, write_outputs
+    from evservo.viewer import open_viewer
+
+    viewer = open_viewer(viewer_kind, viewer_save)
     try:
         with tqdm(total=round(cfg.duration_s * 1000), unit="ms", desc="simulated", leave=False) as bar:
             result = run_episode(cfg, progress=bar.update, viewer=viewer)
@@ -115,12 +167,20 @@ def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
             viewer.close()
     summary = summarize(result)
     paths = write_outputs(result, out, summary)
-    print_summary(summary)
     print(f"figure: {paths['motion']}\nsummary: {paths['summary']}\nlog: {paths['log']}")
-    if summary["interrupted"]:
-        print(f"evservo: interrupted: partial outputs (marked interrupted) in {out}", file=sys.stderr)
-        return 130
-    return 0
+    return summary
+
+
+def print_comparison(ours: dict, paper_law: dict) -> None:
+    """One line each: our controller, the paper's literal law on the same episode, the paper's numbers."""
+    c = ours["config"]
+    print(f"\n{'':40}{'servo pos mm':>13}{'rot deg':>9}{'lag s':>8}  tracking")
+    for name, s in (("ours (feed-forward within arm limits)", ours), ("paper's law, Eq. (5)-(6), same run", paper_law)):
+        held = "held" if s["completed"] else f"lost at {s['simulated_s']:.2f} s"
+        print(f"{name:40}{s['servo_pos_rms_mm']:13.2f}{s['servo_rot_rms_deg']:9.2f}{s['lag_s']:8.3f}  {held}")
+    row = PAPER_TABLE.get((c["object"], round(c["distance_m"], 2), c["trajectory"], c["tracker"]))
+    if row:
+        print(f"{'paper, Table I/II (its real bench)':40}{row[0]:13.2f}{row[1]:9.2f}{'≈0.15':>8}")
 
 
 def print_summary(s: dict) -> None:
@@ -137,6 +197,12 @@ def print_summary(s: dict) -> None:
         print(f"{'paper, Table I/II (real bench)':34}{row[0]:12.2f}{row[1]:14.2f}")
     print(f"camera lag behind target {s['lag_s']:.3f} s (paper ≈ 0.15 s); camera rotation mean "
           f"{s['camera_rot_mean_deg']:.2f}° (paper 1.89° at Z = 0.6 m)")  # fmt: skip
+    t = s["timing"]
+    print(f"timing: sensing {t['sensing_latency_ms']:.1f} ms, tracker step {t['tracker_step_mean_ms']:.2f} ms, "
+          f"control every {t['control_period_ms']:g} ms, "
+          f"Panda {t['panda_rate_hz']:g} Hz + {t['panda_latency_ms']:g} ms, "
+          f"UR5e {t['ur_rate_hz']:g} Hz + {t['ur_latency_ms']:g} ms; command cut to the arm's reach "
+          f"{100 * s['arm_limited_fraction']:.0f} % of the time")  # fmt: skip
     for w in s["watchdog"]:
         print(f"watchdog: no fresh pose since {w['last_pose_s']:.3f} s, braking from {w['start_s']:.3f} s, "
               f"at rest {w['zero_s']} s, servoing again {w['end_s']} s")  # fmt: skip

@@ -12,13 +12,9 @@ def run(args: argparse.Namespace) -> int:
     from evservo.outputs import prepare_out_dir
     from evservo.runtime.inputs import parse_pose
     from evservo.runtime.track import OUTPUTS, track_file
-    from evservo.tracking import FRONTENDS, SOLVERS
+    from evservo.tracking import SOLVERS
     from evservo.viewer import open_viewer
 
-    if args.solver not in SOLVERS:
-        raise ValueError(f"unknown solver {args.solver!r}; choose one of {SOLVERS}")
-    if args.frontend not in FRONTENDS:
-        raise ValueError(f"unknown front-end {args.frontend!r}; choose one of {FRONTENDS}")
     camera = load_camera_file(args.camera) if args.camera else None
     init = parse_pose(args.init_pose) if args.init_pose else None
     solvers = SOLVERS if args.compare else (args.solver,)
@@ -80,8 +76,10 @@ def add_viewer_arguments(p: argparse.ArgumentParser) -> None:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     t = sub.add_parser("track", help="open-loop tracking of an event recording")
     t.add_argument("recording", help="event file: an evservo sim recording (.h5) or any evservo.io format (.raw, ...)")
-    t.add_argument("--solver", default="edft+", help="edft+, edopts or edft")
-    t.add_argument("--frontend", default="scarf", help="scarf, fixed-count or eros")
+    from evservo.tracking import FRONTENDS, SOLVERS
+
+    t.add_argument("--solver", default="edft+", choices=SOLVERS)
+    t.add_argument("--frontend", default="scarf", choices=FRONTENDS)
     t.add_argument("--compare", action="store_true", help="run edft+, edopts and edft; outputs in OUT/<solver>")
     t.add_argument("--model", help="object: built-in name or mesh path (default: the recording's)")
     t.add_argument("--init-pose", help="initial T_c_o as x,y,z,qx,qy,qz,qw (default: the recording's ground truth)")

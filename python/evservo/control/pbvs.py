@@ -16,6 +16,7 @@ limit; so it does after :meth:`Pbvs.stop` and before :meth:`Pbvs.start`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -27,6 +28,11 @@ from evservo.control.pose_filter import PoseFilter
 from evservo.limits import CartesianLimits
 
 State = Literal["ok", "stale", "rejected", "stopped"]
+
+#: ``reach(v_c_w, W, dt_s)``: the camera twist (world frame) nearest ``v_c_w`` in the 6×6 weight ``W``
+#: that the arm can deliver over the next ``dt_s`` seconds (``v_c_w`` itself if it can), e.g.
+#: :class:`evservo.robots.reach.ReachableTwist`.
+Reach = Callable[[np.ndarray, np.ndarray, float], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -41,6 +47,7 @@ class PbvsCommand:
     ``T_w_ctgt``: the camera target of Eq. 5 (None before the first accepted pose).
     ``v_ref_w``: the feed-forward reference twist used (zeros without feed-forward).
     ``watchdog``: True while braking because no fresh pose arrived for ``stale_after_s``.
+    ``arm_limited``: the arm could not deliver the saturated twist, ``v_c_w`` is what it can (see ``reach``).
     """
 
     v_c_w: np.ndarray
@@ -51,6 +58,7 @@ class PbvsCommand:
     T_w_ctgt: np.ndarray | None = None
     v_ref_w: np.ndarray = field(default_factory=lambda: np.zeros(6))
     watchdog: bool = False
+    arm_limited: bool = False
 
 
 class Pbvs:
@@ -80,6 +88,19 @@ class Pbvs:
     ff_accel: with feed-forward, also feed the target's estimated acceleration forward (mc_rtc's
         ``refAccel``); without it Eq. 6 trails an accelerating target by ``a_ref / (k + 2√k s + s²)``.
     ff_accel_tau_s: time constant of the acceleration estimate's low-pass (s).
+    max_image_rate_rad_s: with feed-forward, limit the camera's motion *relative to the target's*
+        so that the object moves in the image no faster than this (rad/s; see
+        :func:`~evservo.control.saturation.image_motion_matrix`): a camera that fell behind catches up
+        no faster than the tracker can follow. None: no limit.
+    reach: what the arm can deliver at its configuration (:data:`Reach`); the saturated twist is
+        replaced by the deliverable one nearest it, image motion first
+        (:func:`~evservo.control.saturation.image_priority_weights`), so the commands, which are also
+        the controller's velocity state, stay true. None: only the Cartesian limits.
+    object_radius_m: the object's radius for the image-motion rates (m).
+    lookahead_s: with feed-forward, the command takes effect this long after :meth:`update` (the arm's
+        command latency): the object and the camera (at its current twist) are predicted to then.
+    predict_accel: with feed-forward, extrapolate the object across the pose's age and ``lookahead_s``
+        at its estimated acceleration (constant-acceleration predictor) instead of at constant velocity.
     """
 
     def __init__(
@@ -95,17 +116,33 @@ class Pbvs:
         ff_bandwidth_hz: float = 5.5,
         ff_accel: bool = True,
         ff_accel_tau_s: float = 0.05,
+        max_image_rate_rad_s: float | None = None,
+        reach: Reach | None = None,
+        object_radius_m: float = 0.1,
+        lookahead_s: float = 0.0,
+        predict_accel: bool = False,
     ) -> None:
         if not (np.isfinite(k) and k > 0):
             raise ValueError("k must be finite and > 0")
         if not period_s > 0:
             raise ValueError("period_s must be > 0")
+        if max_image_rate_rad_s is not None and not max_image_rate_rad_s > 0:
+            raise ValueError("max_image_rate_rad_s must be > 0")
+        if not object_radius_m > 0:
+            raise ValueError("object_radius_m must be > 0")
+        if not (np.isfinite(lookahead_s) and lookahead_s >= 0):
+            raise ValueError("lookahead_s must be finite and >= 0")
         self.filter = PoseFilter(ema_alpha, stale_after_s, max_jump_m, max_jump_rad, ff_bandwidth_hz, ff_accel_tau_s)
         self.k = float(k)
         self.feedforward = feedforward
         self.period_s = float(period_s)
         self.limits = limits or CartesianLimits()
         self.ff_accel = ff_accel
+        self.max_image_rate_rad_s = max_image_rate_rad_s
+        self.reach = reach
+        self.object_radius_m = float(object_radius_m)
+        self.lookahead_s = float(lookahead_s)
+        self.predict_accel = predict_accel
         self.T_c_o_des: np.ndarray | None = None
         self._running = False
 
@@ -168,19 +205,32 @@ class Pbvs:
 
         v_ref, a_ref = np.zeros(6), np.zeros(6)
         if self.feedforward:
-            T_w_o = f.object_at(t_s)
+            T_w_o, twist_o = f.object_at(t_s + self.lookahead_s, self.predict_accel)
             T_w_ctgt = law.camera_target(T_w_o, self.T_c_o_des)
-            v_ref, a_ref = law.rigid_reference(
-                T_w_o, T_w_ctgt, f.motion.twist_w, f.motion.accel_w if self.ff_accel else None
-            )
+            v_ref, a_ref = law.rigid_reference(T_w_o, T_w_ctgt, twist_o, f.motion.accel_w if self.ff_accel else None)
+            T_w_c_then = geometry.advance(T_w_c, v_c_w, self.lookahead_s)
         else:
-            T_w_ctgt = law.camera_target(f.T_w_o, self.T_c_o_des)
-        e_w = law.world_error(T_w_c, T_w_ctgt)
+            T_w_o, T_w_c_then = f.T_w_o, T_w_c
+            T_w_ctgt = law.camera_target(T_w_o, self.T_c_o_des)
+        e_w = law.world_error(T_w_c_then, T_w_ctgt)
         a = law.acceleration(self.k, e_w, v_c_w, v_ref, a_ref)
-        v_cmd, a_cmd = saturation.saturate(v_c_w, a, self.limits, self.period_s)
+        h = self.period_s
+        A = None
+        if self.reach is not None or (self.feedforward and self.max_image_rate_rad_s is not None):
+            A = saturation.image_motion_matrix(T_w_c, T_w_o[:3, 3], self.object_radius_m)
+        if A is not None and self.feedforward and self.max_image_rate_rad_s is not None:
+            a = (saturation.limit_image_rate(v_c_w + a * h, v_ref, A, self.max_image_rate_rad_s) - v_c_w) / h
+        v_cmd, a_cmd = saturation.saturate(v_c_w, a, self.limits, h)
+        limited = False
+        if A is not None and self.reach is not None:
+            depth = float(np.linalg.norm(T_w_o[:3, 3] - T_w_c[:3, 3]))
+            v_arm = self.reach(v_cmd, saturation.image_priority_weights(A, depth), h)
+            limited = not np.array_equal(v_arm, v_cmd)
+            v_cmd, a_cmd = v_arm, (v_arm - v_c_w) / h
         R = T_w_c[:3, :3]
         e_c = np.concatenate([R.T @ e_w[:3], R.T @ e_w[3:]])
-        return PbvsCommand(v_cmd, a_cmd, e_c, "rejected" if reason else "ok", reason, T_w_ctgt, v_ref)
+        state: State = "rejected" if reason else "ok"
+        return PbvsCommand(v_cmd, a_cmd, e_c, state, reason, T_w_ctgt, v_ref, arm_limited=limited)
 
     def _brake(self, v: np.ndarray, state: State, reason: str) -> PbvsCommand:
         """Decelerate towards rest at the acceleration limit."""

@@ -165,7 +165,13 @@ class PoseFilter:
         self.pose_t_s = pose_t_s
         return ""
 
-    def object_at(self, t_s: float) -> np.ndarray:
-        """The smoothed object pose extrapolated to ``t_s`` with the estimated twist."""
+    def object_at(self, t_s: float, accel: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The smoothed object pose extrapolated to ``t_s`` and its twist there (world frame): at
+        constant velocity, or with ``accel`` at the estimated constant acceleration (the pose moved at
+        the mean twist over the interval)."""
         assert self.T_w_o is not None and self.pose_t_s is not None
-        return geometry.advance(self.T_w_o, self.motion.twist_w, t_s - self.pose_t_s)
+        dt = t_s - self.pose_t_s
+        if not accel:
+            return geometry.advance(self.T_w_o, self.motion.twist_w, dt), self.motion.twist_w
+        a = self.motion.accel_w
+        return geometry.advance(self.T_w_o, self.motion.twist_w + 0.5 * dt * a, dt), self.motion.twist_w + dt * a

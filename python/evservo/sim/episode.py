@@ -2,12 +2,13 @@
 
 Everything runs on the scene's simulated 1 kHz clock, in this order per millisecond tick ``t``:
 
-1. the UR5e is commanded (every 2 ms, RTDE's rate) to carry the target along the trajectory: a
-   displacement of the object in the world frame from its start pose, entered with a smooth
-   velocity ramp;
+1. the UR5e is commanded (every ``ur_period_s``, 2 ms: RTDE's rate) to carry the target along the
+   trajectory: a displacement of the object in the world frame from its start pose, entered with a
+   smooth velocity ramp; each command reaches the arm ``ur_latency_s`` later;
 2. the controller (:class:`~evservo.control.Pbvs`, every ``control_period_s``) reads the newest pose
-   the tracker has *published by t* and returns a camera twist, which the Panda's command path
-   resolves through the joint-limited QP every tick (1 kHz, like Franka's FCI). The controller's
+   the tracker has *published by t* and returns a camera twist, which is sent to the Panda every
+   ``panda_period_s`` (1 ms, like Franka's FCI), reaches it ``panda_latency_s`` later and is resolved
+   there through the joint-limited QP. The controller's
    velocity state is its own previous command, as mc_rtc integrates its QP's output, not the
    measured twist: the regularised IK realises ~1 % less than asked, and re-basing on that every
    2 ms would silently eat ~1 m/s² of the commanded acceleration;
@@ -46,6 +47,8 @@ from evservo.geometry import pose_errors, rotation_from_first_rad
 from evservo.interrupt import INTERRUPTED, StopOnInterrupt
 from evservo.outputs import make_out_dir
 from evservo.robots import PoseFollower, shift_twist
+from evservo.robots.delay import DelayedArm
+from evservo.robots.reach import ReachableTwist
 from evservo.runtime.metrics import estimate_lag_s, rms
 from evservo.runtime.report import plot_motion, write_log, write_summary
 from evservo.runtime.watchdog import WatchdogSpell, spells_from_flags
@@ -55,8 +58,8 @@ from evservo.sim.sources import EVENT_SOURCES, EventSource, make_event_source
 from evservo.tracking import FRONTENDS, SOLVERS, Tracker
 
 COST_MODELS = ("measured", "fixed")
-TICK_US = 1000  # physics step, event batch and Panda command period
-UR_PERIOD_US = 2000
+PREDICTORS = ("velocity", "acceleration")
+TICK_US = 1000  # physics step and event batch
 #: Longest episode: the per-tick (1 kHz) record is preallocated, ~0.4 kB a tick.
 MAX_DURATION_S = 3600.0
 #: The files :func:`write_outputs` writes into an episode's directory.
@@ -82,6 +85,15 @@ class EpisodeConfig:
     ``dropout_s``: ``(start, end)`` window whose events are lost (sensor or link failure).
     ``lost_pos_m``, ``lost_rot_deg``: tracking counts as lost, and the episode ends, once the estimate
     is this far from the truth at the estimate's time.
+    ``feedforward``: our controller (the target's motion fed forward, within what the Panda can deliver
+    at its configuration, image motion first, catch-up no faster than ``max_image_rate_rad_s``);
+    off: the paper's literal Eq. (5)–(6). ``predictor``: how feed-forward extrapolates the target
+    across the pose's age and the Panda's command latency: ``"velocity"`` (constant velocity) or
+    ``"acceleration"`` (constant acceleration).
+    Timing (seconds): ``sensing_latency_s`` from an event to the tracker (3.5 ms, the paper's
+    measurement); the tracker's compute per ``cost_model``; the controller every ``control_period_s``;
+    each arm's command link: the UR5e (RTDE) commanded every ``ur_period_s`` with ``ur_latency_s``
+    from write to servo, the Panda (FCI) every ``panda_period_s`` with ``panda_latency_s``.
     ``render_arms``: draw the UR5e and the Panda into the rendered event camera too (their moving
     links occlude the scene and fire events; see :mod:`evservo.sim.arms`); needs ``event_source``
     ``"render"``.
@@ -104,6 +116,10 @@ class EpisodeConfig:
     event_source: str = "edges"
     sensing_latency_s: float = 0.0035
     control_period_s: float = 0.002
+    ur_period_s: float = 0.002
+    ur_latency_s: float = 0.003
+    panda_period_s: float = 0.001
+    panda_latency_s: float = 0.001
     stiffness: float = 20.0
     ramp_s: float = 0.5
     dropout_s: tuple[float, float] | None = None
@@ -111,6 +127,8 @@ class EpisodeConfig:
     lost_rot_deg: float = 15.0
     log_rate_hz: float = 100.0
     render_arms: bool = False
+    max_image_rate_rad_s: float = 0.5
+    predictor: str = "velocity"
 
     def __post_init__(self) -> None:
         if self.tracker not in SOLVERS:
@@ -136,8 +154,13 @@ class EpisodeConfig:
             raise ValueError(f"duration must be at most {MAX_DURATION_S:g} s (per-tick record), got {self.duration_s}")
         if not (self.lm_cost_s > 0 and self.search_cost_s > 0 and self.sensing_latency_s >= 0):
             raise ValueError("step costs must be > 0 and the latency >= 0")
-        if round(self.control_period_s * 1e6) % TICK_US or self.control_period_s <= 0:
-            raise ValueError("control_period_s must be a positive multiple of 1 ms")
+        for name in ("control_period_s", "ur_period_s", "panda_period_s"):
+            if round(getattr(self, name) * 1e6) % TICK_US or getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be a positive multiple of 1 ms")
+        if not (self.ur_latency_s >= 0 and self.panda_latency_s >= 0 and self.max_image_rate_rad_s > 0):
+            raise ValueError("command latencies must be >= 0 and max_image_rate_rad_s > 0")
+        if self.predictor not in PREDICTORS:
+            raise ValueError(f"unknown predictor {self.predictor!r}; choose one of {PREDICTORS}")
         if self.render_arms and self.event_source != "render":
             raise ValueError(
                 f"render_arms draws the arms in the rendered event camera: it needs event_source 'render', "
@@ -154,7 +177,9 @@ class EpisodeResult:
     ``T_w_o``, ``T_w_c``: true object and camera poses. ``T_c_o_est``: the newest tracker pose
     published by ``t_s`` and ``est_t_s`` its time stamp (newest event behind it). ``v_cmd_w``: the
     controller's camera twist (world; m/s, rad/s); ``v_cam_w``: the camera's actual twist.
-    ``watchdog``: the controller was braking for lack of a fresh pose. ``ended``: ``"duration"``,
+    ``watchdog``: the controller was braking for lack of a fresh pose. ``arm_limited``: the controller's
+    command was cut to what the Panda can deliver. ``joint_speed_ratio``: the Panda's fastest joint
+    against its velocity limit (1 = at the limit). ``ended``: ``"duration"``,
     ``"tracking lost"`` or ``"arm error: …"``. ``steps``: tracker steps published, per kind.
     ``busy_s``: tracker time charged to the clock.
     """
@@ -169,6 +194,8 @@ class EpisodeResult:
     v_cmd_w: np.ndarray
     v_cam_w: np.ndarray
     watchdog: np.ndarray
+    arm_limited: np.ndarray
+    joint_speed_ratio: np.ndarray
     ended: str
     lost_at_s: float | None
     steps: dict[str, int]
@@ -312,19 +339,31 @@ def run_episode(
     source = _primed_source(cfg, camera, T_c_o0, core, arms)
     tracker = ClockedTracker(core, _cost_model(cfg))
     traj = trajectories.make_trajectory(cfg.trajectory, speed_mps=cfg.speed_mps, rot_rate_dps=cfg.rot_rate_dps)
+    ur = DelayedArm(scene.ur, cfg.ur_latency_s)
+    panda = DelayedArm(scene.panda, cfg.panda_latency_s)
     follower = PoseFollower(
-        scene.ur,
+        ur,
         lambda t: trajectories.apply(traj(np.array([ramped_time(t, cfg.ramp_s)])), T_w_o0)[0],
         T_e_x=scene.config.T_e_o,
-        period_s=UR_PERIOD_US * 1e-6,
+        period_s=cfg.ur_period_s,
     )
-    pbvs = Pbvs(k=cfg.stiffness, feedforward=cfg.feedforward, period_s=cfg.control_period_s)
+    pbvs = Pbvs(
+        k=cfg.stiffness,
+        feedforward=cfg.feedforward,
+        period_s=cfg.control_period_s,
+        max_image_rate_rad_s=cfg.max_image_rate_rad_s,
+        reach=ReachableTwist(scene.panda) if cfg.feedforward else None,
+        lookahead_s=cfg.panda_latency_s,
+        predict_accel=cfg.predictor == "acceleration",
+    )
     # The paper captures the tracker's pose at servo start as the desired pose.
     T_c_o_des = tracker.latest(0).T_c_o
     pbvs.start(scene.T_w_c(), T_c_o_des, t_s=0.0)
 
     n = round(cfg.duration_s * 1e6) // TICK_US
     ctrl_every = round(cfg.control_period_s * 1e6) // TICK_US
+    ur_every = round(cfg.ur_period_s * 1e6) // TICK_US
+    panda_every = round(cfg.panda_period_s * 1e6) // TICK_US
     latency_us = round(cfg.sensing_latency_s * 1e6)
     drop = None if cfg.dropout_s is None else (round(cfg.dropout_s[0] * 1e6), round(cfg.dropout_s[1] * 1e6))
     lost_rot = np.deg2rad(cfg.lost_rot_deg)
@@ -336,9 +375,11 @@ def run_episode(
         "v_cmd_w": np.empty((n, 6)),
         "v_cam_w": np.empty((n, 6)),
         "watchdog": np.zeros(n, bool),
+        "arm_limited": np.zeros(n, bool),
+        "joint_speed_ratio": np.zeros(n),
     }
     T_c_o_true = [T_c_o0]  # per tick, to score an estimate against the truth at its own time
-    v_cmd, watchdog = np.zeros(6), False
+    v_cmd, watchdog, arm_limited = np.zeros(6), False, False
     last_seq, ended, lost_at, n_events, done = 0, "duration", None, 0, 0
     with StopOnInterrupt() as stop:
         for k in range(n):
@@ -348,7 +389,9 @@ def run_episode(
             t_us = k * TICK_US
             t = t_us * 1e-6
             try:
-                if t_us % UR_PERIOD_US == 0:
+                ur.deliver(t_us)
+                panda.deliver(t_us)
+                if k % ur_every == 0:
                     follower.command(t)
                 T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
                 v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
@@ -358,11 +401,12 @@ def run_episode(
                     fresh = est.seq != last_seq and not est.lost
                     last_seq = est.seq
                     cmd = pbvs.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6)
-                    v_cmd, watchdog = cmd.v_c_w, cmd.watchdog
-                if watchdog and not np.any(v_cmd):
-                    scene.panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
-                else:
-                    scene.panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), TICK_US * 1e-6)
+                    v_cmd, watchdog, arm_limited = cmd.v_c_w, cmd.watchdog, cmd.arm_limited
+                if k % panda_every == 0:
+                    if watchdog and not np.any(v_cmd):
+                        panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
+                    else:
+                        panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), cfg.panda_period_s)
             except RuntimeError as err:  # an infeasible IK QP: report it, do not crash the run
                 ended = f"arm error: {err}"
                 break
@@ -375,7 +419,8 @@ def run_episode(
                 break
             rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = scene.T_w_o(), T_w_c, T_est
             rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
-            rec["watchdog"][k] = watchdog
+            rec["watchdog"][k], rec["arm_limited"][k] = watchdog, arm_limited
+            rec["joint_speed_ratio"][k] = np.max(np.abs(scene.panda.qd) / scene.panda.limits.qd_max)
             done = k + 1
 
             scene.step(1)
@@ -417,6 +462,46 @@ def run_episode(
     return result
 
 
+def timing(result: EpisodeResult) -> dict:
+    """The loop's timing (ms, Hz): what the episode simulated, and the tracker's measured share."""
+    cfg, r = result.config, result
+    n_steps = sum(r.steps.values())
+    return {
+        "sensing_latency_ms": cfg.sensing_latency_s * 1e3,
+        "tracker_step_mean_ms": r.busy_s / n_steps * 1e3 if n_steps else float("nan"),
+        "pose_age_mean_ms": float(np.mean(r.t_s - r.est_t_s) * 1e3) if len(r.t_s) else float("nan"),
+        "control_period_ms": cfg.control_period_s * 1e3,
+        "ur_rate_hz": 1.0 / cfg.ur_period_s,
+        "ur_latency_ms": cfg.ur_latency_s * 1e3,
+        "panda_rate_hz": 1.0 / cfg.panda_period_s,
+        "panda_latency_ms": cfg.panda_latency_s * 1e3,
+    }
+
+
+def gave_out(result: EpisodeResult, window_s: float = 0.5) -> str | None:
+    """Why an episode ended early: ``"arm"`` when, in the ``window_s`` before, the Panda was at a joint
+    velocity limit or the controller's command had to be cut to what it could deliver; ``"tracker"``
+    when tracking was lost without that; the end reason otherwise; None when it ran its course."""
+    r = result
+    if r.ended == "duration":
+        return None
+    if r.ended != "tracking lost":
+        return r.ended
+    recent = r.t_s >= r.t_s[-1] - window_s if len(r.t_s) else np.zeros(0, bool)
+    at_limit = np.any(r.joint_speed_ratio[recent] > 0.99) or np.any(r.arm_limited[recent])
+    return "arm" if at_limit else "tracker"
+
+
+def overshoot_m(d_lead: np.ndarray, d_follow: np.ndarray) -> float:
+    """How far ``d_follow`` (N, 3) travels past the extremes of ``d_lead`` (N, 3) along the leader's main
+    direction of motion (metres, ≥ 0): a camera overshooting where its target stopped or turned back."""
+    if len(d_lead) < 2 or not np.any(d_lead):
+        return 0.0
+    axis = np.linalg.svd(d_lead - d_lead.mean(axis=0), full_matrices=False)[2][0]
+    a, b = d_lead @ axis, d_follow @ axis
+    return float(max(0.0, b.max() - a.max(), a.min() - b.min()))
+
+
 def summarize(result: EpisodeResult) -> dict:
     """Metrics of an episode (JSON-ready): the paper's servoing error (estimated vs desired relative
     pose), the same with the true relative pose, the tracking error (estimate vs truth at the
@@ -448,6 +533,7 @@ def summarize(result: EpisodeResult) -> dict:
         "gt_track_pos_rms_mm": rms(k_pos) * 1e3,
         "gt_track_rot_rms_deg": float(np.rad2deg(rms(k_rot))),
         "lag_s": estimate_lag_s(r.t_s, d_obj, d_cam) if n > 100 else float("nan"),
+        "overshoot_mm": overshoot_m(d_obj, d_cam) * 1e3,
         "camera_rot_mean_deg": float(np.rad2deg(np.mean(cam_rot))) if n else float("nan"),
         "object_travel_max_m": float(np.max(np.linalg.norm(d_obj, axis=1))) if n else 0.0,
         "tracker_rate_hz": n_steps / sim_s if sim_s else 0.0,
@@ -456,6 +542,10 @@ def summarize(result: EpisodeResult) -> dict:
         "pose_age_mean_ms": float(np.mean(r.t_s - r.est_t_s) * 1e3) if n else float("nan"),
         "events": r.events,
         "watchdog": [asdict(w) for w in r.watchdog_events],
+        "arm_limited_fraction": float(np.mean(r.arm_limited)) if n else 0.0,
+        "joint_speed_max_ratio": float(np.max(r.joint_speed_ratio)) if n else 0.0,
+        "gave_out": gave_out(r),
+        "timing": timing(r),
         "wall_s": r.wall_s,
         "config": asdict(cfg),
         "versions": {"evservo": _evcore.__version__},
@@ -490,7 +580,7 @@ def write_outputs(result: EpisodeResult, out_dir: str | Path, summary: dict | No
     ])  # fmt: skip
     write_log(paths["log"], header, cols)
     title = f"{cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s" + (
-        ", feed-forward" if cfg.feedforward else ""
+        f", feed-forward ({cfg.predictor})" if cfg.feedforward else ", paper's law"
     )
     plot_motion(
         paths["motion"], r.t_s, r.T_w_c, r.T_w_c @ r.T_c_o_est, title, T_w_o_true=r.T_w_o, spells=r.watchdog_events
