@@ -300,3 +300,16 @@ def test_tracking_a_bag_equals_tracking_the_raw_file(tmp_path):
     raw = (tmp_path / "raw" / "poses.csv").read_text()
     assert raw.count("\n") == 6  # header + 5 updates (1 ms slices over 4 ms of the grid)
     assert (tmp_path / "bagout" / "poses.csv").read_text() == raw
+
+
+def test_track_picks_a_bag_topic(tmp_path, capsys):
+    from evservo.cli import main
+
+    data, _ = evt3_sample()
+    packets = evt3_packets(data, np.array([4096]), 1280, 720)
+    write_bag(tmp_path / "bag", {"/a/events": (bags.EVENT_PACKET, packets), "/b/events": (bags.EVENT_PACKET, packets)})
+    common = ["--model", "box", "--init-pose", "0,0,0.6,0,0,0,1", "--max-seconds", "0.002", "--quiet"]
+    assert main(["track", str(tmp_path / "bag"), *common, "--out", str(tmp_path / "o1")]) == 2
+    assert "several event topics" in capsys.readouterr().err
+    assert main(["track", str(tmp_path / "bag"), *common, "--topic", "/b/events", "--out", str(tmp_path / "o2")]) == 0
+    assert (tmp_path / "o2" / "poses.csv").read_text().count("\n") == 4  # header + 3 updates
