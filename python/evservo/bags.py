@@ -34,6 +34,7 @@ import functools
 import itertools
 import shutil
 import tempfile
+import types
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -177,7 +178,7 @@ def event_blocks(path: str | Path, topic: str | None = None) -> tuple[dict[str, 
         name, msgtype = _event_topic(p, all_topics, topic)
         messages = _messages(reader, name)
         first_raw = next(messages, None)
-        first = None if first_raw is None else _deserialize(p, name, first_raw, msgtype)
+        first = None if first_raw is None else _first_message(p, name, first_raw, msgtype)
     except BaseException:
         reader.close()
         raise
@@ -194,6 +195,18 @@ def _messages(reader: Any, topic: str) -> Iterator[bytes]:
     connections = [c for c in reader.connections if c.topic == topic]
     for _con, _t, raw in reader.messages(connections=connections):
         yield raw
+
+
+def _first_message(path: Path, topic: str, raw: bytes, msgtype: str) -> Any:
+    """What :func:`event_blocks` needs of the first message (``width``, ``height``, ``encoding`` of
+    a packet): an event array's geometry is read from its CDR head, not by deserializing every event."""
+    if msgtype != EVENT_PACKET and len(raw) >= 16 and raw[1] == 1:
+        frame_len = int.from_bytes(raw[12:16], "little")
+        pos = 4 + ((12 + frame_len + 3) & ~3)
+        if pos + 8 <= len(raw):
+            height, width = (int.from_bytes(raw[pos + k : pos + k + 4], "little") for k in (0, 4))
+            return types.SimpleNamespace(width=width, height=height)
+    return _deserialize(path, topic, raw, msgtype)
 
 
 def _deserialize(path: Path, topic: str, raw: bytes, msgtype: str) -> Any:
