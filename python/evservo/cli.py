@@ -6,10 +6,10 @@ import argparse
 import sys
 from typing import NoReturn
 
-from evservo.commands import bench, calib, demo, info, servo, sim, track
+from evservo.commands import bench, calib, demo, info, ros, servo, sim, track
 
 # Each module registers its own subcommand; add new ones here.
-COMMANDS = (bench, calib, demo, info, servo, sim, track)
+COMMANDS = (bench, calib, demo, info, ros, servo, sim, track)
 
 
 class UsageError(Exception):
