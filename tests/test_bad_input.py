@@ -43,7 +43,7 @@ def files(tmp_path):
         (["servo", "--sim", "--trajectory", "{d}/dir.csv", "--out", "{d}/o"], "is a directory"),
         (["sim", "record", "--trajectory", "{d}/dir.csv", "--out", "{d}/a.h5"], "is a directory"),
         (["sim", "record", "--out", "{d}/dir.h5"], "is a directory"),
-        (["track", "{rec}", "--camera", "{d}/neg.yaml", "--out", "{d}/o"], "sensor size -640x360"),
+        (["track", "{rec}", "--camera", "{d}/neg.yaml", "--out", "{d}/o"], "width: must be a whole number of pixels"),
         (["track", "{rec}", "--max-seconds", "-1", "--out", "{d}/o"], "--max-seconds must be"),
         (["track", "{rec}", "--max-seconds", "nan", "--out", "{d}/o"], "--max-seconds must be"),
         (["track", "{d}/dir.h5", "--out", "{d}/o"], "is a directory, not a file"),
