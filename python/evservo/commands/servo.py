@@ -120,6 +120,11 @@ def run_with_report(args: argparse.Namespace, default_out: Path, compare_paper_l
     from evservo.outputs import prepare_out_dir
     from evservo.sim.episode import OUTPUTS
 
+    events = args.events if args.events is not None else args.episode_defaults.get("event_source", "edges")
+    if args.render_arms and events != "render":
+        raise ValueError(
+            f"--render-arms draws the arms in the rendered event camera: needs --events render, not --events {events}"
+        )
     cfg = config_from_args(args)
     literal = compare_paper_law and cfg.feedforward
     # Checked, and cleared of an earlier run's files, before the run: never fails after it.
