@@ -135,3 +135,19 @@ def test_overshoot_is_travel_past_the_leaders_extremes_along_its_motion():
     # Motion across the leader's direction is not overshoot.
     side = lead + 0.01 * np.array([0.8, -0.6, 0.0])
     assert overshoot_m(lead, side) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_demo_runs_our_controller_unless_asked_for_the_paper_law_and_servo_the_reverse():
+    from evservo.cli import build_parser
+    from evservo.commands.servo import config_from_args
+
+    def cfg(*argv):
+        return config_from_args(build_parser().parse_args(list(argv)))
+
+    demo = cfg("demo")
+    assert demo.feedforward and demo.duration_s == 12.0 and demo.predictor == "velocity"
+    assert not cfg("demo", "--paper-law").feedforward
+    assert cfg("demo", "--duration", "3", "--predictor", "acceleration").predictor == "acceleration"
+    assert not cfg("servo", "--sim").feedforward and cfg("servo", "--sim", "--feedforward").feedforward
+    with pytest.raises(SystemExit):
+        cfg("demo", "--feedforward", "--paper-law")

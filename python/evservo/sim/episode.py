@@ -461,10 +461,11 @@ def timing(result: EpisodeResult) -> dict:
 
 
 def gave_out(result: EpisodeResult, window_s: float = 0.5) -> str | None:
-    """Why an episode ended early: ``"arm"`` when, in the ``window_s`` before, the Panda was at a joint
-    velocity limit, or the controller's command had to be cut to what it could deliver, or was at its
-    Cartesian velocity limit; ``"tracker"`` when tracking was lost without that; the end reason
-    otherwise; None when it ran its course."""
+    """Why an episode ended early: ``"tracker"`` when, in the ``window_s`` before, the watchdog braked
+    for want of fresh poses; else ``"arm"`` when the Panda was at a joint velocity limit, or the
+    controller's command was at its Cartesian velocity limit or cut to what the arm could deliver
+    most of the time; else ``"tracker"``; the end reason when it was not tracking loss; None when it
+    ran its course."""
     r = result
     if r.ended == "duration":
         return None
@@ -476,7 +477,9 @@ def gave_out(result: EpisodeResult, window_s: float = 0.5) -> str | None:
     at_cartesian = np.any(np.linalg.norm(v[:, :3], axis=1) >= 0.999 * L.max_lin_vel) or np.any(
         np.linalg.norm(v[:, 3:], axis=1) >= 0.999 * L.max_ang_vel
     )
-    at_limit = np.any(r.joint_speed_ratio[recent] > 0.99) or np.any(r.arm_limited[recent]) or at_cartesian
+    if np.any(r.watchdog[recent]):
+        return "tracker"
+    at_limit = np.any(r.joint_speed_ratio[recent] > 0.99) or np.mean(r.arm_limited[recent]) > 0.5 or at_cartesian
     return "arm" if at_limit else "tracker"
 
 
