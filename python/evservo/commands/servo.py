@@ -110,7 +110,9 @@ def config_from_args(args: argparse.Namespace):
     values.update({field: getattr(args, opt) for opt, field in SIM_ONLY.items() if getattr(args, opt) is not None})
     if values.get("dropout_s") is not None:
         values["dropout_s"] = tuple(values["dropout_s"])
-    return EpisodeConfig(**values, tracker=args.tracker, duration_s=args.duration, feedforward=args.feedforward)
+    # The parsed values win over the command's defaults (demo's duration_s and feedforward among them).
+    values.update(tracker=args.tracker, duration_s=args.duration, feedforward=args.feedforward)
+    return EpisodeConfig(**values)
 
 
 def run_with_report(args: argparse.Namespace, default_out: Path, compare_paper_law: bool = False) -> int:
