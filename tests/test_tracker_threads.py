@@ -6,6 +6,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -184,3 +185,30 @@ def test_a_failed_thread_spawn_leaves_the_tracker_usable():
     lines = out.stdout.splitlines()
     assert lines[0].startswith("failed:") and "could not start the tracker thread" in lines[0], out.stdout
     assert lines[1:] == ["running False lost True", "running True"], out.stdout
+
+
+def test_start_pins_the_solver_and_asks_for_real_time_priority(camera, still_box):
+    T, px = still_box
+    trk = evservo.Tracker(camera, "box", T)
+    with pytest.raises(ValueError, match="unknown priority"):
+        trk.start(priority="urgent")
+    with pytest.raises(ValueError, match="not among"):
+        trk.start(cpu=100_000)
+    assert not trk.running
+    cpu = min(os.sched_getaffinity(0))
+    with trk:
+        assert trk.start(cpu=cpu) == "normal"
+        assert os.sched_getaffinity(trk._core.solver_thread_id) == {cpu}
+        trk.push(batch(px, 0))
+        assert wait_for(lambda: trk.latest().seq >= 5)
+    with trk, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = trk.start(priority="high")
+        tid = trk._core.solver_thread_id
+        if got == "high":
+            assert os.sched_getscheduler(tid) == os.SCHED_FIFO
+        else:  # refused by the OS: said so, and the thread runs normally
+            assert any("SCHED_FIFO" in str(w.message) for w in caught)
+            assert os.sched_getscheduler(tid) == os.SCHED_OTHER
+        trk.push(batch(px, 1000))
+        assert wait_for(lambda: trk.latest().t_us == 1999)

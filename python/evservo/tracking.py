@@ -8,6 +8,10 @@ layout (``x`` u16, ``y`` u16, ``p`` i16, ``t`` i64 µs) in raw sensor pixels.
 
 from __future__ import annotations
 
+import os
+import warnings
+from collections.abc import Iterable
+
 import numpy as np
 
 from evservo import _evcore
@@ -18,7 +22,18 @@ from evservo.models import load_object, to_core_mesh
 SOLVERS = ("edft+", "edopts", "edft")
 FRONTENDS = ("scarf", "fixed-count", "eros")
 
+PRIORITIES = ("normal", "high")
+#: SCHED_FIFO priority of the solver thread with priority="high": above ordinary real-time helpers
+#: (1-49 by convention) and below the kernel's own threaded interrupt handlers (50).
+FIFO_PRIORITY = 40
+
 Estimate = _evcore.Estimate
+
+
+def _usable_cpus() -> set[int]:
+    if hasattr(os, "sched_getaffinity"):
+        return set(os.sched_getaffinity(0))
+    return set(range(os.cpu_count() or 1))
 
 
 def model_point_set(
@@ -91,9 +106,48 @@ class Tracker:
         """Synchronous: run ``n`` single updates (one LM or one search step each) on the current events."""
         return self._core.step(n)
 
-    def start(self) -> None:
-        """Start the solver thread; then feed it with ``push`` and read ``latest``."""
+    def start(self, cpu: int | Iterable[int] | None = None, priority: str = "normal") -> str:
+        """Start the solver thread; then feed it with ``push`` and read ``latest``.
+
+        Args:
+            cpu: pin the solver thread to this CPU (or set of CPUs), e.g. one the producer does not
+                use; None leaves it to the OS.
+            priority: "normal", or "high" for real-time scheduling (SCHED_FIFO) so that other
+                processes cannot preempt the solver. That needs CAP_SYS_NICE or an rtprio limit
+                (``ulimit -r``); where the OS refuses, the thread runs at normal priority and a
+                :class:`RuntimeWarning` says why.
+
+        Returns the priority in effect ("normal" or "high"). A bad ``cpu`` or ``priority`` raises
+        ``ValueError`` and leaves the tracker stopped.
+        """
+        if priority not in PRIORITIES:
+            raise ValueError(f"unknown priority {priority!r}; choose one of {PRIORITIES}")
+        cpus = None if cpu is None else ({int(cpu)} if isinstance(cpu, int) else {int(c) for c in cpu})
+        if cpus is not None and not cpus <= _usable_cpus():
+            raise ValueError(f"cpu {sorted(cpus)} is not among this process's CPUs {sorted(_usable_cpus())}")
         self._core.start()
+        if cpus is None and priority == "normal":
+            return "normal"
+        tid = self._core.solver_thread_id
+        if tid is None or not hasattr(os, "sched_setaffinity"):
+            self._core.stop()
+            raise ValueError("CPU pinning and priority need Linux (the solver thread id is unknown here)")
+        if cpus is not None:
+            os.sched_setaffinity(tid, cpus)
+        if priority == "normal":
+            return "normal"
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
+        except PermissionError:
+            warnings.warn(
+                "priority='high': the OS does not permit SCHED_FIFO for this process (it needs CAP_SYS_NICE, "
+                "or an rtprio limit, e.g. `ulimit -r 50` or @realtime in /etc/security/limits.conf); "
+                "the solver runs at normal priority",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            return "normal"
+        return "high"
 
     def push(self, events: np.ndarray) -> None:
         """Ingest a batch into the running tracker on the calling thread (the GIL is released) and wake

@@ -252,6 +252,8 @@ pub struct TrackerOutput {
     lm_ns: AtomicU64,
     search_ns: AtomicU64,
     jumps_rejected: AtomicU64,
+    /// Kernel thread id of the running solver thread (Linux), 0 when unknown or not running.
+    solver_tid: AtomicI64,
 }
 
 impl TrackerOutput {
@@ -267,6 +269,7 @@ impl TrackerOutput {
             lm_ns: AtomicU64::new(0),
             search_ns: AtomicU64::new(0),
             jumps_rejected: AtomicU64::new(0),
+            solver_tid: AtomicI64::new(0),
         }
     }
 
@@ -909,6 +912,19 @@ impl ThreadedTracker {
         Arc::clone(&self.out)
     }
 
+    /// The solver thread's kernel id (Linux), for affinity and scheduling; waits up to a second
+    /// for a thread that has just been started to report it. None where it cannot be known.
+    pub fn solver_thread_id(&self) -> Option<i64> {
+        let deadline = Instant::now() + Duration::from_secs(1);
+        while self.is_running() && Instant::now() < deadline {
+            match self.out.solver_tid.load(Ordering::Acquire) {
+                0 => thread::sleep(Duration::from_micros(100)),
+                tid => return (tid > 0).then_some(tid),
+            }
+        }
+        None
+    }
+
     /// True while the solver thread runs in this process.
     pub fn is_running(&self) -> bool {
         !self.forked() && self.handle.as_ref().is_some_and(|h| !h.is_finished())
@@ -997,15 +1013,29 @@ impl Drop for ThreadedTracker {
     }
 }
 
-fn run(mut solver: Solver, stop: &AtomicBool, mut seen: u64, idle_at_start: bool) -> Solver {
+/// This thread's kernel id, from `/proc/thread-self` (Linux; None elsewhere).
+fn kernel_thread_id() -> Option<i64> {
+    let link = std::fs::read_link("/proc/thread-self").ok()?;
+    link.file_name()?.to_str()?.parse().ok()
+}
+
+fn run(solver: Solver, stop: &AtomicBool, mut seen: u64, idle_at_start: bool) -> Solver {
+    let tid = kernel_thread_id().unwrap_or(-1);
+    solver.out.solver_tid.store(tid, Ordering::Release);
+    let solver = run_steps(solver, stop, &mut seen, idle_at_start);
+    solver.out.solver_tid.store(0, Ordering::Release);
+    solver
+}
+
+fn run_steps(mut solver: Solver, stop: &AtomicBool, seen: &mut u64, idle_at_start: bool) -> Solver {
     // After a full cycle without new events the field cannot change, so the solver rests until
     // the next push instead of spinning.
     let cycle = solver.schedule.cycle_len();
     let mut steps_without_events = if idle_at_start { cycle } else { 0 };
     while !stop.load(Ordering::Acquire) {
         let batches = solver.out.batches.load(Ordering::Acquire);
-        if batches != seen {
-            seen = batches;
+        if batches != *seen {
+            *seen = batches;
             steps_without_events = 0;
         }
         if steps_without_events >= cycle {

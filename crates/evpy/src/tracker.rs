@@ -264,6 +264,15 @@ impl PyTracker {
         })
     }
 
+    /// Kernel thread id of the running solver thread (Linux), None when not running or unknown.
+    #[getter]
+    fn solver_thread_id(&self, py: Python<'_>) -> PyResult<Option<i64>> {
+        self.with_state(py, |state| match state {
+            State::Threaded(t) => t.solver_thread_id(),
+            _ => None,
+        })
+    }
+
     #[getter]
     fn running(&self, py: Python<'_>) -> PyResult<bool> {
         self.with_state(
