@@ -30,6 +30,12 @@ FIFO_PRIORITY = 40
 Estimate = _evcore.Estimate
 
 
+def _frequencies(hz: float | Iterable[float] | None) -> list[float]:
+    if hz is None:
+        return []
+    return [float(hz)] if isinstance(hz, int | float) else [float(f) for f in hz]
+
+
 def _usable_cpus() -> set[int]:
     if hasattr(os, "sched_getaffinity"):
         return set(os.sched_getaffinity(0))
@@ -60,6 +66,8 @@ class Tracker:
         ingest_core_share: while running, ``push`` thins the stream so that ingest uses at most this
             share of the caller's core (measured on the fly); None keeps every event.
         max_ingest_rate: instead, a fixed cap on the events ingested per second of event time.
+        anti_flicker_hz: drop events of pixels firing periodically at these light flicker frequencies
+            (Hz; 100 under 50 Hz mains, 120 under 60 Hz, or both) before the front-end.
 
     ``latest()`` reads ``lost=True`` until the first update has locked onto the events.
     """
@@ -79,6 +87,7 @@ class Tracker:
         seed: int = 0,
         ingest_core_share: float | None = 0.5,
         max_ingest_rate: float | None = None,
+        anti_flicker_hz: float | Iterable[float] | None = None,
     ) -> None:
         if solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
@@ -92,6 +101,7 @@ class Tracker:
         self._core = _evcore.Tracker(
             camera, self.points_o, T, solver=solver, frontend=frontend, n_search=n_search, tau_px=tau_px,
             levels=levels, ingest_core_share=ingest_core_share, max_ingest_rate=max_ingest_rate,
+            anti_flicker_hz=_frequencies(anti_flicker_hz),
         )  # fmt: skip
 
     def update(self, events: np.ndarray) -> Estimate:

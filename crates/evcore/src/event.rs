@@ -53,6 +53,8 @@ pub trait EventRecords {
     fn xy(&self, i: usize) -> (u16, u16);
     /// Time of event `i` (µs).
     fn t_at(&self, i: usize) -> i64;
+    /// Polarity of event `i` (0 OFF, non-zero ON).
+    fn p_at(&self, i: usize) -> i16;
     /// Time of the last event, if any.
     fn last_t(&self) -> Option<i64> {
         self.n_events().checked_sub(1).map(|i| self.t_at(i))
@@ -107,6 +109,10 @@ impl EventRecords for [EventCd] {
     fn t_at(&self, i: usize) -> i64 {
         self[i].t
     }
+    #[inline]
+    fn p_at(&self, i: usize) -> i16 {
+        self[i].p
+    }
 }
 
 impl EventRecords for EventBatch {
@@ -121,6 +127,10 @@ impl EventRecords for EventBatch {
     #[inline]
     fn t_at(&self, i: usize) -> i64 {
         self.t_us[i]
+    }
+    #[inline]
+    fn p_at(&self, i: usize) -> i16 {
+        self.p[i]
     }
 }
 

@@ -33,7 +33,7 @@ use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32};
 use crate::solve::lm::{lm_pyramid, LmParams};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
-use crate::surface::{split_surface, FrontEnd, SurfaceReader, SurfaceWriter};
+use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::sync::atomic::{fence, AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -62,6 +62,9 @@ pub struct TrackerConfig {
     pub max_jump: f64,
     /// How much the threaded tracker may thin an overloading stream; see [`IngestLimit`].
     pub ingest_limit: IngestLimit,
+    /// Light flicker frequencies (Hz) whose periodic pixels are dropped before the front-end
+    /// (100 on 50 Hz mains, 120 on 60 Hz); empty = no anti-flicker. See [`FlickerFilter`].
+    pub anti_flicker_hz: Vec<f64>,
 }
 
 impl Default for TrackerConfig {
@@ -78,6 +81,7 @@ impl Default for TrackerConfig {
             lost_inlier_fraction: 0.15,
             max_jump: 0.25,
             ingest_limit: IngestLimit::default(),
+            anti_flicker_hz: Vec::new(),
         }
     }
 }
@@ -146,7 +150,7 @@ pub struct TrackerStats {
     pub events_offered: u64,
     /// Events inserted into the front-end.
     pub events_ingested: u64,
-    /// Events thinned out under overload (offered − ingested).
+    /// Events left out: thinned under overload or removed as flicker (offered − ingested).
     pub events_dropped: u64,
     pub jumps_rejected: u64,
 }
@@ -401,6 +405,9 @@ pub struct Ingest {
     writer: Box<dyn SurfaceWriter>,
     last_t_us: Option<i64>,
     thinning: Thinning,
+    flicker: Option<FlickerFilter>,
+    /// Indices of the events that passed the flicker filter (scratch).
+    unflickered: Vec<u32>,
     pixels: Vec<u32>,
     out: Arc<TrackerOutput>,
 }
@@ -422,18 +429,35 @@ impl Ingest {
         } else {
             1.0
         };
+        // Candidates: every event, or those the flicker filter lets through (it must see all).
+        let m = match &mut self.flicker {
+            None => n,
+            Some(f) => {
+                self.unflickered.clear();
+                for i in 0..n {
+                    let (x, y) = events.xy(i);
+                    if f.pass(x, y, events.p_at(i), events.t_at(i)) {
+                        self.unflickered.push(i as u32);
+                    }
+                }
+                self.unflickered.len()
+            }
+        };
+        let filtered = self.flicker.is_some();
+        let unflickered = &self.unflickered;
+        let index = |j: usize| if filtered { unflickered[j] as usize } else { j };
         self.pixels.clear();
         if keep >= 1.0 {
-            for i in 0..n {
-                let (x, y) = events.xy(i);
+            for j in 0..m {
+                let (x, y) = events.xy(index(j));
                 self.pixels.push(self.lut.map(x, y));
             }
         } else {
             // Every (1/keep)-th event: the loop runs over kept events only.
-            let (step, end) = (1.0 / keep, n as f64);
+            let (step, end) = (1.0 / keep, m as f64);
             let mut pos = self.thinning.next_pos;
             while pos < end {
-                let (x, y) = events.xy(pos as usize);
+                let (x, y) = events.xy(index(pos as usize));
                 self.pixels.push(self.lut.map(x, y));
                 pos += step;
             }
@@ -460,6 +484,9 @@ impl Ingest {
         self.writer.reset();
         self.last_t_us = None;
         self.thinning.reset();
+        if let Some(f) = &mut self.flicker {
+            f.reset();
+        }
         self.out.newest_t_us.store(i64::MIN, Ordering::Release);
     }
 }
@@ -695,6 +722,10 @@ impl TrackerCore {
             writer,
             last_t_us: None,
             thinning: Thinning::new(config.ingest_limit),
+            flicker: (!config.anti_flicker_hz.is_empty())
+                .then(|| FlickerFilter::new(camera.width, camera.height, &config.anti_flicker_hz))
+                .transpose()?,
+            unflickered: Vec::new(),
             pixels: Vec::new(),
             out: Arc::clone(&out),
         };
@@ -981,6 +1012,8 @@ impl ThreadedTracker {
             writer: Box::new(NoWriter),
             last_t_us: None,
             thinning: Thinning::new(IngestLimit::Off),
+            flicker: None,
+            unflickered: Vec::new(),
             pixels: Vec::new(),
             out: Arc::clone(&self.out),
         };

@@ -120,9 +120,9 @@ pub struct PyTracker {
 impl PyTracker {
     /// Tracker(camera, points_o (N,3) metres in the object frame, T_c_o (4,4), solver="edft+",
     /// frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0,
-    /// ingest_core_share=0.5, max_ingest_rate=None)
+    /// ingest_core_share=0.5, max_ingest_rate=None, anti_flicker_hz=[])
     #[new]
-    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None))]
+    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None, anti_flicker_hz=Vec::new()))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -138,6 +138,7 @@ impl PyTracker {
         roi_margin_px: f64,
         ingest_core_share: Option<f64>,
         max_ingest_rate: Option<f64>,
+        anti_flicker_hz: Vec<f64>,
     ) -> PyResult<Self> {
         let pose = matrix_from_py(&T_c_o)?;
         let pts = points_o.as_array();
@@ -168,6 +169,7 @@ impl PyTracker {
             },
             roi_margin_px,
             ingest_limit,
+            anti_flicker_hz,
             ..TrackerConfig::default()
         };
         let cam = camera.inner;
