@@ -6,6 +6,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -184,3 +185,70 @@ def test_a_failed_thread_spawn_leaves_the_tracker_usable():
     lines = out.stdout.splitlines()
     assert lines[0].startswith("failed:") and "could not start the tracker thread" in lines[0], out.stdout
     assert lines[1:] == ["running False lost True", "running True"], out.stdout
+
+
+def test_start_pins_the_solver_and_asks_for_real_time_priority(camera, still_box):
+    T, px = still_box
+    trk = evservo.Tracker(camera, "box", T)
+    with pytest.raises(ValueError, match="unknown priority"):
+        trk.start(priority="urgent")
+    with pytest.raises(ValueError, match="not among"):
+        trk.start(cpu=100_000)
+    assert not trk.running
+    cpu = min(os.sched_getaffinity(0))
+    with trk:
+        assert trk.start(cpu=cpu) == "normal"
+        assert os.sched_getaffinity(trk._core.solver_thread_id) == {cpu}
+        trk.push(batch(px, 0))
+        assert wait_for(lambda: trk.latest().seq >= 5)
+    with trk, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = trk.start(priority="high")
+        tid = trk._core.solver_thread_id
+        if got == "high":
+            assert os.sched_getscheduler(tid) == os.SCHED_FIFO
+        else:  # refused by the OS: said so, and the thread runs normally
+            assert any("SCHED_FIFO" in str(w.message) for w in caught)
+            assert os.sched_getscheduler(tid) == os.SCHED_OTHER
+        trk.push(batch(px, 1000))
+        assert wait_for(lambda: trk.latest().t_us == 1999)
+
+
+def test_anti_flicker_drops_a_mains_lamp_and_tracking_holds(camera, still_box):
+    """A 100 Hz lamp lights a band across the box (every lit pixel fires an ON and an OFF burst each
+    10 ms); the box's edges fire every 1 ms. With the filter, the lamp's events are dropped once
+    their rhythm shows and the pose stays on the box."""
+    T, px = still_box
+    rng = np.random.default_rng(5)
+    lo, hi = px.min(axis=0), px.max(axis=0)
+    lamp = np.stack(
+        [rng.integers(lo[0], hi[0], 4000), rng.integers((lo[1] + hi[1]) // 2 - 20, (lo[1] + hi[1]) // 2 + 20, 4000)], 1
+    )
+    # Lit pixels that are also edge pixels fire off the lamp's rhythm and rightly pass: keep them apart.
+    W = camera.width
+    lamp = np.unique(lamp[:, 1] * W + lamp[:, 0])
+    lamp = lamp[~np.isin(lamp, px[:, 1] * W + px[:, 0])]
+    lamp = np.stack([lamp % W, lamp // W], 1)
+    phase = rng.integers(0, 10_000, len(lamp))
+    trk = evservo.Tracker(camera, "box", T, anti_flicker_hz=(100, 120))
+    lamp_events = 0
+    for k in range(300):
+        t0 = 1000 * k
+        edge = batch(px, t0)
+        # Lamp bursts whose ON (OFF) time falls in this millisecond.
+        fires = [(lamp[(phase + off) % 10_000 // 1000 == k % 10], p) for p, off in ((1, 0), (0, 5000))]
+        parts = [edge]
+        for where, p in fires:
+            ev = np.zeros(len(where), dtype=EVENT_CD)
+            ev["x"], ev["y"], ev["p"] = where[:, 0], where[:, 1], p
+            ev["t"] = t0 + rng.integers(0, 1000, len(where))
+            parts.append(ev)
+        ev = np.concatenate(parts)
+        ev = ev[np.argsort(ev["t"], kind="stable")]
+        lamp_events += len(ev) - len(edge)
+        est = trk.update(ev)
+    s = trk.stats()
+    # Each lamp pixel passes its first periods (≈ 3 of 30), the edges all their events.
+    assert s["events_dropped"] > 0.85 * lamp_events, (s, lamp_events)
+    assert not est.lost
+    assert np.linalg.norm(est.T_c_o[:3, 3] - T[:3, 3]) < 2e-3

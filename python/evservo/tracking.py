@@ -8,6 +8,10 @@ layout (``x`` u16, ``y`` u16, ``p`` i16, ``t`` i64 µs) in raw sensor pixels.
 
 from __future__ import annotations
 
+import os
+import warnings
+from collections.abc import Iterable
+
 import numpy as np
 
 from evservo import _evcore
@@ -19,7 +23,24 @@ from evservo.models import load_object, to_core_mesh
 SOLVERS: tuple[str, ...] = tuple(_evcore.SOLVERS)
 FRONTENDS: tuple[str, ...] = tuple(_evcore.FRONTENDS)
 
+PRIORITIES = ("normal", "high")
+#: SCHED_FIFO priority of the solver thread with priority="high": above ordinary real-time helpers
+#: (1-49 by convention) and below the kernel's own threaded interrupt handlers (50).
+FIFO_PRIORITY = 40
+
 Estimate = _evcore.Estimate
+
+
+def _frequencies(hz: float | Iterable[float] | None) -> list[float]:
+    if hz is None:
+        return []
+    return [float(hz)] if isinstance(hz, int | float) else [float(f) for f in hz]
+
+
+def _usable_cpus() -> set[int]:
+    if hasattr(os, "sched_getaffinity"):
+        return set(os.sched_getaffinity(0))
+    return set(range(os.cpu_count() or 1))
 
 
 def model_point_set(
@@ -46,6 +67,8 @@ class Tracker:
         ingest_core_share: while running, ``push`` thins the stream so that ingest uses at most this
             share of the caller's core (measured on the fly); None keeps every event.
         max_ingest_rate: instead, a fixed cap on the events ingested per second of event time.
+        anti_flicker_hz: drop events of pixels firing periodically at these light flicker frequencies
+            (Hz; 100 under 50 Hz mains, 120 under 60 Hz, or both) before the front-end.
 
     ``latest()`` reads ``lost=True`` until the first update has locked onto the events.
     """
@@ -65,6 +88,7 @@ class Tracker:
         seed: int = 0,
         ingest_core_share: float | None = 0.5,
         max_ingest_rate: float | None = None,
+        anti_flicker_hz: float | Iterable[float] | None = None,
     ) -> None:
         T = as_pose(T_c_o, "T_c_o")
         self.camera = camera
@@ -74,6 +98,7 @@ class Tracker:
         self._core = _evcore.Tracker(
             camera, self.points_o, T, solver=solver, frontend=frontend, n_search=n_search, tau_px=tau_px,
             levels=levels, ingest_core_share=ingest_core_share, max_ingest_rate=max_ingest_rate,
+            anti_flicker_hz=_frequencies(anti_flicker_hz),
         )  # fmt: skip
 
     def update(self, events: np.ndarray) -> Estimate:
@@ -94,9 +119,48 @@ class Tracker:
         this many steps without new events. Read it before :meth:`start`."""
         return self._core.cycle_len
 
-    def start(self) -> None:
-        """Start the solver thread; then feed it with ``push`` and read ``latest``."""
+    def start(self, cpu: int | Iterable[int] | None = None, priority: str = "normal") -> str:
+        """Start the solver thread; then feed it with ``push`` and read ``latest``.
+
+        Args:
+            cpu: pin the solver thread to this CPU (or set of CPUs), e.g. one the producer does not
+                use; None leaves it to the OS.
+            priority: "normal", or "high" for real-time scheduling (SCHED_FIFO) so that other
+                processes cannot preempt the solver. That needs CAP_SYS_NICE or an rtprio limit
+                (``ulimit -r``); where the OS refuses, the thread runs at normal priority and a
+                :class:`RuntimeWarning` says why.
+
+        Returns the priority in effect ("normal" or "high"). A bad ``cpu`` or ``priority`` raises
+        ``ValueError`` and leaves the tracker stopped.
+        """
+        if priority not in PRIORITIES:
+            raise ValueError(f"unknown priority {priority!r}; choose one of {PRIORITIES}")
+        cpus = None if cpu is None else ({int(cpu)} if isinstance(cpu, int) else {int(c) for c in cpu})
+        if cpus is not None and not cpus <= _usable_cpus():
+            raise ValueError(f"cpu {sorted(cpus)} is not among this process's CPUs {sorted(_usable_cpus())}")
         self._core.start()
+        if cpus is None and priority == "normal":
+            return "normal"
+        tid = self._core.solver_thread_id
+        if tid is None or not hasattr(os, "sched_setaffinity"):
+            self._core.stop()
+            raise ValueError("CPU pinning and priority need Linux (the solver thread id is unknown here)")
+        if cpus is not None:
+            os.sched_setaffinity(tid, cpus)
+        if priority == "normal":
+            return "normal"
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
+        except PermissionError:
+            warnings.warn(
+                "priority='high': the OS does not permit SCHED_FIFO for this process (it needs CAP_SYS_NICE, "
+                "or an rtprio limit, e.g. `ulimit -r 50` or @realtime in /etc/security/limits.conf); "
+                "the solver runs at normal priority",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            return "normal"
+        return "high"
 
     def push(self, events: np.ndarray) -> None:
         """Ingest a batch into the running tracker on the calling thread (the GIL is released) and wake

@@ -53,13 +53,50 @@ pub trait EventRecords {
     fn xy(&self, i: usize) -> (u16, u16);
     /// Time of event `i` (µs).
     fn t_at(&self, i: usize) -> i64;
+    /// Polarity of event `i` (0 OFF, non-zero ON).
+    fn p_at(&self, i: usize) -> i16;
     /// Time of the last event, if any.
     fn last_t(&self) -> Option<i64> {
         self.n_events().checked_sub(1).map(|i| self.t_at(i))
     }
+    /// True when [`validate_events`] would accept the events: the fast check, without finding
+    /// the culprit. No early exit, so it compiles to straight-line (vectorisable) code.
+    fn all_plausible(&self, width: u32, height: u32, prev_t_us: Option<i64>) -> bool {
+        let n = self.n_events();
+        let mut bad = false;
+        for i in 0..n {
+            let ((x, y), t) = (self.xy(i), self.t_at(i));
+            let before = if i > 0 {
+                Some(self.t_at(i - 1))
+            } else {
+                prev_t_us
+            };
+            bad |= !plausible(x, y, t, before, width, height);
+        }
+        !bad
+    }
+}
+
+/// One event against the sensor size and the previous event's time (branch-free).
+#[inline(always)]
+fn plausible(x: u16, y: u16, t: i64, before: Option<i64>, width: u32, height: u32) -> bool {
+    let in_time = t.wrapping_add(MAX_ABS_T_US) as u64 <= 2 * MAX_ABS_T_US as u64;
+    let ordered = before.is_none_or(|b| t >= b && t.wrapping_sub(b) <= MAX_TIME_JUMP_US);
+    (u32::from(x) < width) & (u32::from(y) < height) & in_time & ordered
 }
 
 impl EventRecords for [EventCd] {
+    fn all_plausible(&self, width: u32, height: u32, prev_t_us: Option<i64>) -> bool {
+        let Some(first) = self.first() else {
+            return true;
+        };
+        let first_ok = plausible(first.x, first.y, first.t, prev_t_us, width, height);
+        // Pairs of neighbours instead of a running "last": no loop-carried state to serialise on.
+        let rest_ok = self.iter().zip(&self[1..]).fold(true, |ok, (a, b)| {
+            ok & plausible(b.x, b.y, b.t, Some(a.t), width, height)
+        });
+        first_ok & rest_ok
+    }
     #[inline]
     fn n_events(&self) -> usize {
         self.len()
@@ -71,6 +108,10 @@ impl EventRecords for [EventCd] {
     #[inline]
     fn t_at(&self, i: usize) -> i64 {
         self[i].t
+    }
+    #[inline]
+    fn p_at(&self, i: usize) -> i16 {
+        self[i].p
     }
 }
 
@@ -86,6 +127,10 @@ impl EventRecords for EventBatch {
     #[inline]
     fn t_at(&self, i: usize) -> i64 {
         self.t_us[i]
+    }
+    #[inline]
+    fn p_at(&self, i: usize) -> i16 {
+        self.p[i]
     }
 }
 
@@ -141,23 +186,7 @@ pub fn validate_events<E: EventRecords + ?Sized>(
     height: u32,
     prev_t_us: Option<i64>,
 ) -> Result<()> {
-    // Fast path: accumulate "anything wrong" without branches, look for the culprit only then.
-    let (w, h) = (
-        width.min(u32::from(u16::MAX) + 1),
-        height.min(u32::from(u16::MAX) + 1),
-    );
-    let mut last = prev_t_us.unwrap_or(i64::MIN);
-    let mut bad = false;
-    for i in 0..events.n_events() {
-        let ((x, y), t) = (events.xy(i), events.t_at(i));
-        bad |= (u32::from(x) >= w)
-            | (u32::from(y) >= h)
-            | (t < last)
-            | (t.unsigned_abs() > MAX_ABS_T_US as u64)
-            | (last != i64::MIN && t.saturating_sub(last) > MAX_TIME_JUMP_US);
-        last = t;
-    }
-    if !bad {
+    if events.all_plausible(width, height, prev_t_us) {
         return Ok(());
     }
     let mut last = prev_t_us;

@@ -33,7 +33,7 @@ use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32};
 use crate::solve::lm::{lm_pyramid, LmParams};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
-use crate::surface::{split_surface, FrontEnd, SurfaceReader, SurfaceWriter};
+use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::sync::atomic::{fence, AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -62,6 +62,9 @@ pub struct TrackerConfig {
     pub max_jump: f64,
     /// How much the threaded tracker may thin an overloading stream; see [`IngestLimit`].
     pub ingest_limit: IngestLimit,
+    /// Light flicker frequencies (Hz) whose periodic pixels are dropped before the front-end
+    /// (100 on 50 Hz mains, 120 on 60 Hz); empty = no anti-flicker. See [`FlickerFilter`].
+    pub anti_flicker_hz: Vec<f64>,
 }
 
 impl Default for TrackerConfig {
@@ -78,6 +81,7 @@ impl Default for TrackerConfig {
             lost_inlier_fraction: 0.15,
             max_jump: 0.25,
             ingest_limit: IngestLimit::default(),
+            anti_flicker_hz: Vec::new(),
         }
     }
 }
@@ -146,7 +150,7 @@ pub struct TrackerStats {
     pub events_offered: u64,
     /// Events inserted into the front-end.
     pub events_ingested: u64,
-    /// Events thinned out under overload (offered − ingested).
+    /// Events left out: thinned under overload or removed as flicker (offered − ingested).
     pub events_dropped: u64,
     pub jumps_rejected: u64,
 }
@@ -252,6 +256,8 @@ pub struct TrackerOutput {
     lm_ns: AtomicU64,
     search_ns: AtomicU64,
     jumps_rejected: AtomicU64,
+    /// Kernel thread id of the running solver thread (Linux), 0 when unknown or not running.
+    solver_tid: AtomicI64,
 }
 
 impl TrackerOutput {
@@ -267,6 +273,7 @@ impl TrackerOutput {
             lm_ns: AtomicU64::new(0),
             search_ns: AtomicU64::new(0),
             jumps_rejected: AtomicU64::new(0),
+            solver_tid: AtomicI64::new(0),
         }
     }
 
@@ -308,8 +315,9 @@ struct Thinning {
     /// Measured costs (ns) of validating one offered event and inserting one kept event; 0 = unknown.
     validate_ns: f64,
     insert_ns: f64,
-    /// Fractional credit carried between events and batches, so the kept events are evenly spaced.
-    credit: f64,
+    /// Position of the next kept event relative to the start of the next batch (in events), so the
+    /// kept events are evenly spaced across batch boundaries.
+    next_pos: f64,
 }
 
 /// Event time over which the offered rate is measured (µs).
@@ -328,7 +336,7 @@ impl Thinning {
             window_t0: None,
             validate_ns: 0.0,
             insert_ns: 0.0,
-            credit: 0.0,
+            next_pos: 0.0,
         }
     }
 
@@ -373,23 +381,18 @@ impl Thinning {
         keep.clamp(MIN_KEEP, 1.0)
     }
 
-    /// Fold a timed batch into the cost estimates.
+    /// Fold a timed batch into the cost estimates. Wall-clock samples include any time the thread
+    /// was preempted, which says nothing about the cost per event; so the estimate follows the
+    /// lower envelope: a cheaper sample is taken at once, a dearer one raises it by at most 5 %
+    /// (a genuinely dearer stream, e.g. more cache misses, still gets there within ~50 batches).
     fn record_costs(&mut self, offered: usize, kept: usize, validate: Duration, insert: Duration) {
-        let ema = |old: f64, new: f64| {
-            if old > 0.0 {
-                0.8 * old + 0.2 * new
-            } else {
-                new
-            }
-        };
+        let envelope = |old: f64, new: f64| if old > 0.0 { new.min(old * 1.05) } else { new };
         if offered >= MIN_TIMED_EVENTS {
-            self.validate_ns = ema(
-                self.validate_ns,
-                validate.as_nanos() as f64 / offered as f64,
-            );
+            let ns = validate.as_nanos() as f64 / offered as f64;
+            self.validate_ns = envelope(self.validate_ns, ns);
         }
         if kept >= MIN_TIMED_EVENTS {
-            self.insert_ns = ema(self.insert_ns, insert.as_nanos() as f64 / kept as f64);
+            self.insert_ns = envelope(self.insert_ns, insert.as_nanos() as f64 / kept as f64);
         }
     }
 }
@@ -402,6 +405,9 @@ pub struct Ingest {
     writer: Box<dyn SurfaceWriter>,
     last_t_us: Option<i64>,
     thinning: Thinning,
+    flicker: Option<FlickerFilter>,
+    /// Indices of the events that passed the flicker filter (scratch).
+    unflickered: Vec<u32>,
     pixels: Vec<u32>,
     out: Arc<TrackerOutput>,
 }
@@ -423,23 +429,39 @@ impl Ingest {
         } else {
             1.0
         };
+        // Candidates: every event, or those the flicker filter lets through (it must see all).
+        let m = match &mut self.flicker {
+            None => n,
+            Some(f) => {
+                self.unflickered.clear();
+                for i in 0..n {
+                    let (x, y) = events.xy(i);
+                    if f.pass(x, y, events.p_at(i), events.t_at(i)) {
+                        self.unflickered.push(i as u32);
+                    }
+                }
+                self.unflickered.len()
+            }
+        };
+        let filtered = self.flicker.is_some();
+        let unflickered = &self.unflickered;
+        let index = |j: usize| if filtered { unflickered[j] as usize } else { j };
         self.pixels.clear();
         if keep >= 1.0 {
-            for i in 0..n {
-                let (x, y) = events.xy(i);
+            for j in 0..m {
+                let (x, y) = events.xy(index(j));
                 self.pixels.push(self.lut.map(x, y));
             }
         } else {
-            let mut credit = self.thinning.credit;
-            for i in 0..n {
-                credit += keep;
-                if credit >= 1.0 {
-                    credit -= 1.0;
-                    let (x, y) = events.xy(i);
-                    self.pixels.push(self.lut.map(x, y));
-                }
+            // Every (1/keep)-th event: the loop runs over kept events only.
+            let (step, end) = (1.0 / keep, m as f64);
+            let mut pos = self.thinning.next_pos;
+            while pos < end {
+                let (x, y) = events.xy(index(pos as usize));
+                self.pixels.push(self.lut.map(x, y));
+                pos += step;
             }
-            self.thinning.credit = credit;
+            self.thinning.next_pos = pos - end;
         }
         let kept = self.pixels.len();
         // The writer skips OUTSIDE (≥ width·height) itself.
@@ -462,6 +484,9 @@ impl Ingest {
         self.writer.reset();
         self.last_t_us = None;
         self.thinning.reset();
+        if let Some(f) = &mut self.flicker {
+            f.reset();
+        }
         self.out.newest_t_us.store(i64::MIN, Ordering::Release);
     }
 }
@@ -697,6 +722,10 @@ impl TrackerCore {
             writer,
             last_t_us: None,
             thinning: Thinning::new(config.ingest_limit),
+            flicker: (!config.anti_flicker_hz.is_empty())
+                .then(|| FlickerFilter::new(camera.width, camera.height, &config.anti_flicker_hz))
+                .transpose()?,
+            unflickered: Vec::new(),
             pixels: Vec::new(),
             out: Arc::clone(&out),
         };
@@ -914,6 +943,19 @@ impl ThreadedTracker {
         Arc::clone(&self.out)
     }
 
+    /// The solver thread's kernel id (Linux), for affinity and scheduling; waits up to a second
+    /// for a thread that has just been started to report it. None where it cannot be known.
+    pub fn solver_thread_id(&self) -> Option<i64> {
+        let deadline = Instant::now() + Duration::from_secs(1);
+        while self.is_running() && Instant::now() < deadline {
+            match self.out.solver_tid.load(Ordering::Acquire) {
+                0 => thread::sleep(Duration::from_micros(100)),
+                tid => return (tid > 0).then_some(tid),
+            }
+        }
+        None
+    }
+
     /// True while the solver thread runs in this process.
     pub fn is_running(&self) -> bool {
         !self.forked() && self.handle.as_ref().is_some_and(|h| !h.is_finished())
@@ -970,6 +1012,8 @@ impl ThreadedTracker {
             writer: Box::new(NoWriter),
             last_t_us: None,
             thinning: Thinning::new(IngestLimit::Off),
+            flicker: None,
+            unflickered: Vec::new(),
             pixels: Vec::new(),
             out: Arc::clone(&self.out),
         };
@@ -1002,15 +1046,29 @@ impl Drop for ThreadedTracker {
     }
 }
 
-fn run(mut solver: Solver, stop: &AtomicBool, mut seen: u64, idle_at_start: bool) -> Solver {
+/// This thread's kernel id, from `/proc/thread-self` (Linux; None elsewhere).
+fn kernel_thread_id() -> Option<i64> {
+    let link = std::fs::read_link("/proc/thread-self").ok()?;
+    link.file_name()?.to_str()?.parse().ok()
+}
+
+fn run(solver: Solver, stop: &AtomicBool, mut seen: u64, idle_at_start: bool) -> Solver {
+    let tid = kernel_thread_id().unwrap_or(-1);
+    solver.out.solver_tid.store(tid, Ordering::Release);
+    let solver = run_steps(solver, stop, &mut seen, idle_at_start);
+    solver.out.solver_tid.store(0, Ordering::Release);
+    solver
+}
+
+fn run_steps(mut solver: Solver, stop: &AtomicBool, seen: &mut u64, idle_at_start: bool) -> Solver {
     // After a full cycle without new events the field cannot change, so the solver rests until
     // the next push instead of spinning.
     let cycle = solver.schedule.cycle_len();
     let mut steps_without_events = if idle_at_start { cycle } else { 0 };
     while !stop.load(Ordering::Acquire) {
         let batches = solver.out.batches.load(Ordering::Acquire);
-        if batches != seen {
-            seen = batches;
+        if batches != *seen {
+            *seen = batches;
             steps_without_events = 0;
         }
         if steps_without_events >= cycle {

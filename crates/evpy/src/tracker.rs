@@ -109,9 +109,9 @@ pub struct PyTracker {
 impl PyTracker {
     /// Tracker(camera, points_o (N,3) metres in the object frame, T_c_o (4,4), solver="edft+",
     /// frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0,
-    /// ingest_core_share=0.5, max_ingest_rate=None)
+    /// ingest_core_share=0.5, max_ingest_rate=None, anti_flicker_hz=[])
     #[new]
-    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None))]
+    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None, anti_flicker_hz=Vec::new()))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -127,6 +127,7 @@ impl PyTracker {
         roi_margin_px: f64,
         ingest_core_share: Option<f64>,
         max_ingest_rate: Option<f64>,
+        anti_flicker_hz: Vec<f64>,
     ) -> PyResult<Self> {
         let pose = pose_arg(&T_c_o)?;
         let pts = points_o.as_array();
@@ -157,6 +158,7 @@ impl PyTracker {
             },
             roi_margin_px,
             ingest_limit,
+            anti_flicker_hz,
             ..TrackerConfig::default()
         };
         let cam = camera.inner;
@@ -258,6 +260,15 @@ impl PyTracker {
     #[getter]
     fn cycle_len(&self, py: Python<'_>) -> PyResult<usize> {
         self.with_core(py, |core| core.cycle_len())
+    }
+
+    /// Kernel thread id of the running solver thread (Linux), None when not running or unknown.
+    #[getter]
+    fn solver_thread_id(&self, py: Python<'_>) -> PyResult<Option<i64>> {
+        self.with_state(py, |state| match state {
+            State::Threaded(t) => t.solver_thread_id(),
+            _ => None,
+        })
     }
 
     #[getter]

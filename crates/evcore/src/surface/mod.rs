@@ -8,10 +8,12 @@
 
 mod eros;
 mod fixed_count;
+mod flicker;
 mod scarf;
 
 pub use eros::Eros;
 pub use fixed_count::FixedCount;
+pub use flicker::FlickerFilter;
 pub use scarf::{Scarf, ScarfGeometry, ScarfReader, ScarfWriter};
 
 use crate::error::{ensure, Error, Result};
