@@ -121,27 +121,99 @@ impl PlaneInCamera {
         }
     }
 
-    /// (depth in metres, cell (i, j)) of the plane along the ray (rx, ry, 1); `None` if missed.
+    /// The plane along canvas row `y` of pinhole camera `canvas`.
+    fn at_row(&self, canvas: &Camera, y: usize) -> PlaneRow<'_> {
+        let inv_fx = 1.0 / canvas.fx;
+        let ry = (y as f64 - canvas.cy) / canvas.fy;
+        // The ray through pixel x is (x·inv_fx − cx·inv_fx, ry, 1): each dot product with it is
+        // affine in x.
+        let affine = |v: &Vector3<f64>| (v.y * ry + v.z - v.x * canvas.cx * inv_fx, v.x * inv_fx);
+        PlaneRow {
+            plane: self,
+            dn: affine(&self.n),
+            ax: affine(&self.ax),
+            ay: affine(&self.ay),
+            inv_cell: 1.0 / self.plane.cell_m,
+        }
+    }
+}
+
+/// [`PlaneInCamera`] along one canvas row; see [`PlaneInCamera::at_row`].
+struct PlaneRow<'a> {
+    plane: &'a PlaneInCamera,
+    /// (offset, slope) in x of n·ray, ax·ray and ay·ray.
+    dn: (f64, f64),
+    ax: (f64, f64),
+    ay: (f64, f64),
+    inv_cell: f64,
+}
+
+impl PlaneRow<'_> {
+    /// (depth in metres, cell (i, j)) of the plane seen by canvas pixel `x`; `None` if missed.
+    /// The one formula for both the full-frame and the sparse path, so they agree bit for bit.
     #[inline]
-    fn cell(&self, rx: f64, ry: f64) -> Option<(f64, (i64, i64))> {
-        let ray = Vector3::new(rx, ry, 1.0);
-        let denom = self.n.dot(&ray);
-        let z = self.d / denom;
+    fn cell(&self, x: usize) -> Option<(f64, (i64, i64))> {
+        let xf = x as f64;
+        let z = self.plane.d / (self.dn.0 + self.dn.1 * xf);
         if !(z.is_finite() && z > NEAR_PLANE_M) {
             return None;
         }
-        let p = ray * z;
-        let (x, y) = (self.ax.dot(&p) + self.bx, self.ay.dot(&p) + self.by);
-        let c = self.plane.cell_m;
-        Some((z, ((x / c).floor() as i64, (y / c).floor() as i64)))
+        let px = (self.ax.0 + self.ax.1 * xf) * z + self.plane.bx;
+        let py = (self.ay.0 + self.ay.1 * xf) * z + self.plane.by;
+        Some((
+            z,
+            (
+                fast_floor(px * self.inv_cell),
+                fast_floor(py * self.inv_cell),
+            ),
+        ))
     }
 
-    /// (depth in metres, intensity) of the plane along the ray (rx, ry, 1); `None` if missed.
-    #[inline]
-    fn hit(&self, rx: f64, ry: f64) -> Option<(f32, f32)> {
-        self.cell(rx, ry)
-            .map(|(z, (i, j))| (z as f32, self.plane.albedo(i, j)))
+    /// Intensities of pixels `x0 ..= x1` into `out`, given the cells `c0`, `c1` of the two ends.
+    /// Where both ends see one cell, so does every pixel between: the segment maps to a
+    /// segment on the plane, and cells are convex. Otherwise split in halves.
+    fn fill(
+        &self,
+        x0: usize,
+        c0: Option<(f64, (i64, i64))>,
+        x1: usize,
+        c1: Option<(f64, (i64, i64))>,
+        out: &mut [f32],
+    ) {
+        let value = |c: Option<(f64, (i64, i64))>| {
+            c.map_or(0.0, |(_, (i, j))| self.plane.plane.albedo(i, j))
+        };
+        match (c0, c1) {
+            (Some((_, a)), Some((_, b))) if a == b => out.fill(value(c0)),
+            _ if x1 - x0 <= 1 => {
+                out[0] = value(c0);
+                out[x1 - x0] = value(c1);
+            }
+            _ => {
+                let mid = (x0 + x1) / 2;
+                let cm = self.cell(mid);
+                // Both halves include `mid`, and agree on it.
+                self.fill(x0, c0, mid, cm, &mut out[..=mid - x0]);
+                self.fill(mid, cm, x1, c1, &mut out[mid - x0..]);
+            }
+        }
     }
+
+    /// (depth in metres, intensity) of canvas pixel `x`: infinitely far and black if missed.
+    #[inline]
+    fn hit(&self, x: usize) -> (f32, f32) {
+        self.cell(x).map_or((f32::INFINITY, 0.0), |(z, (i, j))| {
+            (z as f32, self.plane.plane.albedo(i, j))
+        })
+    }
+}
+
+/// ⌊v⌋ for finite |v| < 2⁶³ (far-off rays saturate, which only merges cells beyond the
+/// horizon). `f64::floor` is a libm call without SSE4.1; this is one cast and a compare.
+#[inline]
+fn fast_floor(v: f64) -> i64 {
+    let i = v as i64;
+    i - i64::from(v < i as f64)
 }
 
 /// What one [`SimCamera::advance`] did.
@@ -183,6 +255,9 @@ pub struct SimCamera {
     /// each mesh (object first, then the occluders) covered at the last frame.
     tile_boxes: Vec<Option<CanvasBox>>,
     changed: Vec<bool>,
+    /// Each tile's composited canvas box as of its last redraw (empty: unknown); a redraw that
+    /// reproduces it leaves the tile's raw pixels, and so its sensor pixels, alone.
+    tile_cache: Vec<Vec<f32>>,
     cover: Coverage,
     cover_prev: Coverage,
 }
@@ -236,6 +311,7 @@ impl SimCamera {
         let tile_boxes = tile_boxes(&map, camera.width as usize, camera.height as usize, cw, ch);
         Ok(Self {
             changed: vec![false; tile_boxes.len()],
+            tile_cache: vec![Vec::new(); tile_boxes.len()],
             tile_boxes,
             cover: Coverage::new(1, cw, ch),
             cover_prev: Coverage::new(1, cw, ch),
@@ -522,6 +598,7 @@ impl SimCamera {
             // The renderer holds this full frame's triangles: the coverage the next sparse frame
             // compares against.
             self.cover.mark(self.renderer.triangle_boxes());
+            self.tile_cache.iter_mut().for_each(Vec::clear);
         }
         self.prev_pose = Some(*t_c_o);
         self.prev_occluder_poses.clear();
@@ -573,11 +650,7 @@ impl SimCamera {
         };
         let canvas = self.canvas;
         let cell_at = |plane: &PlaneInCamera, (x, y): (usize, usize)| {
-            let (rx, ry) = (
-                (x as f64 - canvas.cx) / canvas.fx,
-                (y as f64 - canvas.cy) / canvas.fy,
-            );
-            plane.cell(rx, ry).map(|(_, c)| c)
+            plane.at_row(&canvas, y).cell(x).map(|(_, c)| c)
         };
         // One cell under all four corners of a box means one cell under all of it: the box maps
         // to a convex quadrilateral on the plane and the cells are convex.
@@ -624,14 +697,16 @@ impl SimCamera {
         let (w, h) = (self.camera.width as usize, self.camera.height as usize);
         let t = TILE_PX as usize;
         let tx = w.div_ceil(t);
-        let (map, boxes, changed) = (&self.map, &self.tile_boxes, &self.changed);
+        let (map, boxes) = (&self.map, &self.tile_boxes);
         let background = self.background;
-        self.raw.par_chunks_mut(t * w).enumerate().for_each_init(
-            Vec::new,
-            |buf: &mut Vec<f32>, (ty, rows)| {
+        self.raw
+            .par_chunks_mut(t * w)
+            .zip(self.changed.par_chunks_mut(tx))
+            .zip(self.tile_cache.par_chunks_mut(tx))
+            .enumerate()
+            .for_each(|(ty, ((rows, changed), cache))| {
                 for kx in 0..tx {
-                    let k = ty * tx + kx;
-                    let (true, Some(b)) = (changed[k], boxes[k]) else {
+                    let (true, Some(b)) = (changed[kx], boxes[ty * tx + kx]) else {
                         continue;
                     };
                     let uniform = match (&plane_now, background) {
@@ -640,9 +715,34 @@ impl SimCamera {
                         (None, Background::Uniform(level)) => Some(level),
                         (None, Background::Plane(_)) => None,
                     };
-                    if uniform.is_none() {
-                        composite(buf, &b, &canvas, rendered, plane_now.as_ref(), background);
+                    let old = std::mem::take(&mut cache[kx]);
+                    let mut buf = Vec::with_capacity(b.width() * b.height());
+                    match uniform {
+                        Some(level) => buf.resize(b.width() * b.height(), level),
+                        None => {
+                            let meshes = rendered.filter(|_| cover.meets(&drawn, &b));
+                            composite(
+                                &mut buf,
+                                &b,
+                                &canvas,
+                                meshes,
+                                plane_now.as_ref(),
+                                background,
+                            )
+                        }
                     }
+                    let same = old.len() == buf.len()
+                        && old
+                            .iter()
+                            .zip(&buf)
+                            .all(|(x, y)| x.to_bits() == y.to_bits());
+                    cache[kx] = buf;
+                    if same {
+                        // Same canvas values, same raw values: nothing for the sensor either.
+                        changed[kx] = false;
+                        continue;
+                    }
+                    let buf = &cache[kx];
                     let (x0, n_rows) = (kx * t, rows.len() / w);
                     let x1 = (x0 + t).min(w);
                     for r in 0..n_rows {
@@ -664,8 +764,7 @@ impl SimCamera {
                         }
                     }
                 }
-            },
-        );
+            });
         self.sim.step_tiles(&self.raw, &self.changed, t_us, out)?;
         // Report the box of the redrawn tiles (a 1-pixel region when none was).
         let (mut lo, mut hi) = ((w, h), (0, 0));
@@ -708,10 +807,9 @@ impl SimCamera {
             .par_chunks_mut(w)
             .enumerate()
             .for_each(|(y, row)| {
-                let ry = (y as f64 - c.cy) / c.fy;
+                let plane = plane.at_row(c, y);
                 for (x, px) in row.iter_mut().enumerate() {
-                    let rx = (x as f64 - c.cx) / c.fx;
-                    *px = plane.hit(rx, ry).unwrap_or((f32::INFINITY, 0.0));
+                    *px = plane.hit(x);
                 }
             });
     }
@@ -903,16 +1001,26 @@ fn composite(
 ) {
     buf.clear();
     for y in b.y0..=b.y1 {
-        let ry = (y as f64 - canvas.cy) / canvas.fy;
-        for x in b.x0..=b.x1 {
-            let (d, i) = match rendered.and_then(|r| r.index(x as u32, y as u32).map(|k| (r, k))) {
-                Some((r, k)) => (r.depth_m[k], r.intensity[k]),
-                None => (f32::INFINITY, 0.0),
-            };
-            let value = match (plane, background) {
-                (Some(p), _) => {
-                    let rx = (x as f64 - canvas.cx) / canvas.fx;
-                    let (z, value) = p.hit(rx, ry).unwrap_or((f32::INFINITY, 0.0));
+        let row = plane.map(|p| p.at_row(canvas, y));
+        // The mesh buffer's slice of this row, when the meshes reach it.
+        let mesh = rendered.and_then(|r| {
+            let k = r.index(b.x0 as u32, y as u32)?;
+            Some((&r.depth_m[k..k + b.width()], &r.intensity[k..k + b.width()]))
+        });
+        if let (Some(row), None) = (&row, mesh) {
+            // Background only: fill the row by bisection between pixels of one cell.
+            let start = buf.len();
+            buf.resize(start + b.width(), 0.0);
+            let out = &mut buf[start..];
+            let (c0, c1) = (row.cell(b.x0), row.cell(b.x1));
+            row.fill(b.x0, c0, b.x1, c1, out);
+            continue;
+        }
+        for (c, x) in (b.x0..=b.x1).enumerate() {
+            let (d, i) = mesh.map_or((f32::INFINITY, 0.0), |(d, i)| (d[c], i[c]));
+            let value = match (&row, background) {
+                (Some(row), _) => {
+                    let (z, value) = row.hit(x);
                     if z < d || !d.is_finite() {
                         value
                     } else {
