@@ -26,6 +26,20 @@
 //!   noise-free parameters it gives exactly the events of a full-frame step (tested); with noise,
 //!   pixels outside the region emit no noise (see the simulator's ROI notes). A new background
 //!   pose, a vertex at or behind the near plane, or the first frame force a full frame.
+//! * **Flicker.** With `flicker_hz` and `flicker_depth` set (the `lab` preset), every lit
+//!   surface (all of them: object, occluders and background are lit by the room's lamps) is
+//!   multiplied by [`SimParams::flicker_gain`] at each frame time before the sensor step; every
+//!   frame then steps the whole sensor. Between frames the sensor interpolates log intensity
+//!   linearly, so frames must come well above twice the flicker frequency (the closed loop
+//!   renders at ≥ 1 kHz against 100 Hz).
+//! * **Sparse frames** (default). A raw tile can only change if its canvas box holds a
+//!   background cell edge at the previous or the current frame, or meets the screen box of a
+//!   triangle of a mesh that moved, at either pose. Only those tiles are redrawn (background by
+//!   bisection between pixels of one cell, meshes in the bounding box of the tiles they touch);
+//!   a redrawn tile whose canvas values did not change is dropped too, and the sensor steps the
+//!   rest ([`EventSimulator::step_tiles`]), catching skipped pixels up on leak. The events equal
+//!   the reference path's (`set_sparse(false)`: full frames while the background moves, the
+//!   changed region otherwise) bit for bit without leak, up to f32 rounding with it (tested).
 //! * **Occluders.** Further meshes (e.g. the robot arms) set by [`SimCamera::set_occluders`] and
 //!   posed per frame in [`SimCamera::advance_scene`] are rendered with the object into one
 //!   z-tested buffer, shaded like the object. An occluder whose pose changed since the previous
@@ -240,6 +254,8 @@ pub struct SimCamera {
     sim: EventSimulator,
     margin_px: u32,
     /// The current raw frame (linear intensity), kept whole so that ROI steps can be cut from it.
+    /// The raw frame times the flicker gain, what the sensor sees when the lighting flickers.
+    lit: Vec<f32>,
     raw: Vec<f32>,
     /// Scratch: the composited canvas region and the raw ROI values.
     canvas_buf: Vec<f32>,
@@ -317,6 +333,7 @@ impl SimCamera {
             cover_prev: Coverage::new(1, cw, ch),
             sparse: true,
             raw: vec![0.0; camera.n_pixels()],
+            lit: Vec::new(),
             camera,
             canvas,
             map,
@@ -352,7 +369,8 @@ impl SimCamera {
         &self.sim
     }
 
-    /// The current raw frame, linear intensity, row-major `width`×`height`.
+    /// The current raw frame, linear intensity, row-major `width`×`height`, before the
+    /// lighting's flicker gain ([`SimParams::flicker_gain`]).
     pub fn frame(&self) -> &[f32] {
         &self.raw
     }
@@ -552,7 +570,10 @@ impl SimCamera {
             self.cache_background();
         }
         let region = match self.prev_pose {
-            Some(prev) if !moved_background => self.changed_region(&prev, t_c_o, occluder_poses),
+            // Flicker changes every lit pixel.
+            Some(prev) if !moved_background && !self.flickers() => {
+                self.changed_region(&prev, t_c_o, occluder_poses)
+            }
             _ => Region::Full,
         };
         let info = match region {
@@ -564,7 +585,12 @@ impl SimCamera {
                     full,
                     Roi::full(self.canvas.width, self.canvas.height),
                 )?;
-                self.sim.step(&self.raw, t_us, out)?;
+                if self.flickers() {
+                    self.light(t_us);
+                    self.sim.step(&self.lit, t_us, out)?;
+                } else {
+                    self.sim.step(&self.raw, t_us, out)?;
+                }
                 FrameInfo {
                     roi: full,
                     full_frame: true,
@@ -765,7 +791,16 @@ impl SimCamera {
                     }
                 }
             });
-        self.sim.step_tiles(&self.raw, &self.changed, t_us, out)?;
+        if self.flickers() {
+            // Every lit pixel changes; tiles that see nothing stay dark.
+            for (flag, b) in self.changed.iter_mut().zip(&self.tile_boxes) {
+                *flag = b.is_some();
+            }
+            self.light(t_us);
+            self.sim.step_tiles(&self.lit, &self.changed, t_us, out)?;
+        } else {
+            self.sim.step_tiles(&self.raw, &self.changed, t_us, out)?;
+        }
         // Report the box of the redrawn tiles (a 1-pixel region when none was).
         let (mut lo, mut hi) = ((w, h), (0, 0));
         for (k, _) in self.changed.iter().enumerate().filter(|(_, &c)| c) {
@@ -792,6 +827,22 @@ impl SimCamera {
             roi,
             full_frame: false,
         })
+    }
+
+    /// Whether the sensor parameters ask for mains flicker of the lighting.
+    fn flickers(&self) -> bool {
+        let p = self.sim.params();
+        p.flicker_hz > 0.0 && p.flicker_depth > 0.0
+    }
+
+    /// `lit` = the raw frame under the lighting at `t_us` (the flicker gain).
+    fn light(&mut self, t_us: i64) {
+        let gain = self.sim.params().flicker_gain(t_us) as f32;
+        self.lit.resize(self.raw.len(), 0.0);
+        self.lit
+            .par_chunks_mut(1 << 14)
+            .zip(self.raw.par_chunks(1 << 14))
+            .for_each(|(l, r)| l.iter_mut().zip(r).for_each(|(l, r)| *l = r * gain));
     }
 
     fn cache_background(&mut self) {
@@ -1367,6 +1418,92 @@ mod tests {
         // skipped (the real sensor's cells span ~30 pixels).
         let tiles = sparse.changed.len() * 39;
         assert!(skipped * 3 > tiles, "{skipped} of {tiles} tiles skipped");
+    }
+
+    #[test]
+    fn lab_preset_flickers_at_mains_frequency_and_has_hot_pixels() {
+        // A static scene under the `lab` preset: everything lit fires with the 100 Hz flicker,
+        // ON while the light rises and OFF while it falls; hot pixels fire at their own rate.
+        let mesh = Arc::new(test_cube(0.12, Shading::Constant(0.8)));
+        let params = SimParams {
+            seed: 2,
+            ..SimParams::preset("lab").unwrap()
+        };
+        let mut sc = SimCamera::new(
+            small_camera(),
+            mesh,
+            RenderOptions::default(),
+            plane(),
+            params.clone(),
+            2,
+        )
+        .unwrap();
+        let mut all = EventBatch::default();
+        let mut ev = EventBatch::default();
+        let p = pose(0.0, 0.7, 0.0);
+        // 20 ms to settle (a pixel's reference starts mid-swing), then 40 ms counted.
+        for k in 0..=120 {
+            sc.advance(&p, 500 * k, None, &mut ev).unwrap();
+            if k > 40 {
+                all.extend_from(&ev);
+            }
+        }
+        let n = small_camera().n_pixels();
+        // The light dips 0.16 log below its mean; OFF thresholds are N(0.2, 0.03): ~10 % of
+        // the pixels lock on.
+        let w = small_camera().width as usize;
+        let mut fired = vec![false; n];
+        for k in 0..all.len() {
+            fired[all.y[k] as usize * w + all.x[k] as usize] = true;
+        }
+        let frac = fired.iter().filter(|f| **f).count() as f64 / n as f64;
+        assert!((0.04..0.25).contains(&frac), "{frac} of pixels flicker");
+        // d/dt sin(2π·100·t) > 0 on the first and last quarter of each 10 ms period.
+        let rising = |t: i64| {
+            let phase = (t.rem_euclid(10_000)) as f64 / 10_000.0;
+            !(0.25..0.75).contains(&phase)
+        };
+        let agree = (0..all.len())
+            .filter(|&k| rising(all.t_us[k]) == (all.p[k] == 1))
+            .count();
+        assert!(
+            agree * 100 > all.len() * 95,
+            "{agree} of {} events follow the light",
+            all.len()
+        );
+        let hot = sc.simulator().hot_pixels();
+        assert!(
+            !hot.is_empty() && hot.len() < n / 1000 + 10,
+            "{} hot pixels",
+            hot.len()
+        );
+        // Without flicker the same static scene is silent but for noise and hot pixels.
+        let quiet = SimParams {
+            flicker_depth: 0.0,
+            ..params
+        };
+        let mesh = Arc::new(test_cube(0.12, Shading::Constant(0.8)));
+        let mut sc = SimCamera::new(
+            small_camera(),
+            mesh,
+            RenderOptions::default(),
+            plane(),
+            quiet,
+            2,
+        )
+        .unwrap();
+        let mut count = 0;
+        for k in 0..=120 {
+            sc.advance(&p, 500 * k, None, &mut ev).unwrap();
+            count += ev.len();
+        }
+        // Each hot pixel: 500 Hz for 60 ms ≈ 30 events; shot noise and leak add ≈ 40.
+        let expected = hot.len() * 30;
+        assert!(
+            count > expected / 2 && count < 2 * expected + 60,
+            "{count} events, {} hot pixels",
+            hot.len()
+        );
     }
 
     #[test]

@@ -85,6 +85,7 @@ const MAX_NOISE_EVENTS_PER_PIXEL_STEP: f64 = 1000.0;
 /// the shot noise of some step.
 const STREAM_FIXED_PATTERN: u64 = 0x5EED_F1E1D;
 const STREAM_SHOT: u64 = 0x5EED_5407;
+const STREAM_HOT: u64 = 0x5EED_4077;
 
 /// Generator for one (seed, purpose, a, b) tuple; splitmix64's finaliser decorrelates nearby keys.
 fn stream(seed: u64, purpose: u64, a: u64, b: u64) -> Rng {
@@ -164,6 +165,12 @@ impl EventSimulator {
                     row.c_neg[x] = cn as f32;
                     row.leak_per_us[x] = (leak_hz * 1e-6 * f64::from(row.c_pos[x])) as f32;
                 }
+                if params.hot_pixel_fraction > 0.0 {
+                    let mut rng = stream(params.seed, STREAM_HOT, u64::from(y), 0);
+                    row.hot = (0..width)
+                        .filter(|_| rng.uniform() < params.hot_pixel_fraction)
+                        .collect();
+                }
                 row
             })
             .collect();
@@ -210,6 +217,16 @@ impl EventSimulator {
             .flat_map(|r| r.c_neg.iter().copied())
             .collect();
         (on, off)
+    }
+
+    /// Row-major indices of the hot pixels.
+    pub fn hot_pixels(&self) -> Vec<u32> {
+        let w = self.width;
+        self.rows
+            .iter()
+            .enumerate()
+            .flat_map(|(y, r)| r.hot.iter().map(move |&x| y as u32 * w + x))
+            .collect()
     }
 
     /// Per-pixel static leak-event rate in Hz, row-major.
@@ -375,7 +392,9 @@ impl EventSimulator {
         let p = &self.params;
         let bright = p.shot_noise_bright_factor.max(1.0);
         let noise_per_step =
-            (self.max_leak_hz + p.shot_noise_rate_hz * bright) * dt_us as f64 * 1e-6;
+            (self.max_leak_hz + p.shot_noise_rate_hz * bright + p.hot_pixel_rate_hz)
+                * dt_us as f64
+                * 1e-6;
         ensure(noise_per_step <= MAX_NOISE_EVENTS_PER_PIXEL_STEP, || {
             format!("a {dt_us} µs interval expects {noise_per_step:.0} noise events per pixel; step more often")
         })?;
@@ -386,6 +405,7 @@ impl EventSimulator {
             log_eps: p.log_eps as f32,
             shot_per_us: p.shot_noise_rate_hz * 1e-6,
             shot_bright_factor: p.shot_noise_bright_factor,
+            hot_per_us: p.hot_pixel_rate_hz * 1e-6,
         })
     }
 

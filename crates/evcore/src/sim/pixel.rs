@@ -45,6 +45,8 @@ pub(super) struct Interval {
     pub shot_per_us: f64,
     /// Shot-rate multiplier at intensity 1.
     pub shot_bright_factor: f64,
+    /// Extra noise rate of a hot pixel, per microsecond.
+    pub hot_per_us: f64,
 }
 
 /// State and fixed-pattern constants of one sensor row, struct of arrays so the static-pixel
@@ -63,6 +65,8 @@ pub(super) struct Row {
     /// the earliest time leak alone can make one of them fire (µs, [`NEVER_DUE`] if never).
     pub seg_t_us: Vec<i64>,
     pub seg_due_us: Vec<i64>,
+    /// Columns of the row's hot pixels, ascending.
+    pub hot: Vec<u32>,
     /// Scratch reused between steps to avoid per-step allocation.
     pub events: Vec<RawEvent>,
     shots: Vec<Shot>,
@@ -87,6 +91,7 @@ impl Row {
             leak_per_us: vec![0.0; width],
             seg_t_us: vec![0; width.div_ceil(SEGMENT_PX)],
             seg_due_us: vec![NEVER_DUE; width.div_ceil(SEGMENT_PX)],
+            hot: Vec::new(),
             events: Vec::new(),
             shots: Vec::new(),
             busy: Vec::new(),
@@ -126,6 +131,12 @@ impl Row {
     /// the number of arrivals, not of pixels.
     fn sample_shots(&mut self, frame: &[f32], iv: &Interval, rng: &mut Rng) {
         self.shots.clear();
+        self.sample_dark_shots(frame, iv, rng);
+        self.sample_hot_shots(frame.len(), iv, rng);
+    }
+
+    /// Every pixel's shot noise (see [`Self::sample_shots`]).
+    fn sample_dark_shots(&mut self, frame: &[f32], iv: &Interval, rng: &mut Rng) {
         if iv.shot_per_us <= 0.0 {
             return;
         }
@@ -153,6 +164,31 @@ impl Row {
                     on,
                 });
             }
+        }
+    }
+
+    /// The hot pixels' extra arrivals among columns `0 .. n` (a Poisson process per pixel),
+    /// merged into `self.shots` keeping the column-then-time order.
+    fn sample_hot_shots(&mut self, n: usize, iv: &Interval, rng: &mut Rng) {
+        if iv.hot_per_us <= 0.0 || self.hot.is_empty() {
+            return;
+        }
+        let rate = iv.hot_per_us * iv.dt_us as f64; // arrivals per interval
+        let before = self.shots.len();
+        for &col in self.hot.iter().filter(|&&c| (c as usize) < n) {
+            let mut s = 0.0;
+            loop {
+                s += -(1.0 - rng.uniform()).ln() / rate;
+                if s >= 1.0 {
+                    break;
+                }
+                let on = rng.uniform() < 0.5;
+                self.shots.push(Shot { col, s, on });
+            }
+        }
+        if self.shots.len() > before {
+            self.shots
+                .sort_by(|a, b| a.col.cmp(&b.col).then(a.s.total_cmp(&b.s)));
         }
     }
 
