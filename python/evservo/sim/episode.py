@@ -46,7 +46,7 @@ from evservo.control import Pbvs
 from evservo.robots import PoseFollower, shift_twist
 from evservo.sim.arms import ArmMeshes
 from evservo.sim.scene import DualArmScene
-from evservo.sim.sources import EVENT_SOURCES, EventSource, make_event_source
+from evservo.sim.sources import EVENT_SOURCES, RENDERED_SOURCES, EventSource, make_event_source
 from evservo.tracking import FRONTENDS, SOLVERS, Tracker
 
 COST_MODELS = ("measured", "fixed")
@@ -118,7 +118,7 @@ class EpisodeConfig:
             raise ValueError("step costs must be > 0 and the latency >= 0")
         if round(self.control_period_s * 1e6) % TICK_US or self.control_period_s <= 0:
             raise ValueError("control_period_s must be a positive multiple of 1 ms")
-        if self.render_arms and self.event_source != "render":
+        if self.render_arms and self.event_source not in RENDERED_SOURCES:
             raise ValueError(
                 f"render_arms draws the arms in the rendered event camera: it needs event_source 'render', "
                 f"not {self.event_source!r}"
