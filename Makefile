@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 export VIRTUAL_ENV := $(abspath $(VENV))
 export PATH := $(abspath $(BIN)):$(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: setup build demo test test-rust test-python bench lint fmt clean
+.PHONY: setup build demo test test-rust test-python stubtest bench lint fmt clean viewer
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,10 @@ build: $(VENV)/.deps
 
 setup: build
 
+# The optional live viewer (rerun-sdk, about 700 MB): `evservo track|servo --viewer rerun`.
+viewer: setup
+	$(BIN)/python -m pip install -q rerun-sdk==0.41.0
+
 demo: setup
 	$(BIN)/evservo demo
 
@@ -34,7 +38,11 @@ test-rust:
 test-python: setup
 	PYTHONUNBUFFERED=1 $(BIN)/python -m pytest -q
 
-test: test-rust test-python
+# The hand-written stubs of the compiled core, checked against the built extension.
+stubtest: setup
+	$(BIN)/python -m mypy.stubtest evservo._evcore
+
+test: lint stubtest test-rust test-python
 
 bench: setup
 	cargo bench -p evcore

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from evservo.cli import main
-from evservo.sim.episode import EpisodeConfig, estimate_lag_s, run_episode, summarize, write_outputs
+from evservo.runtime.metrics import estimate_lag_s
+from evservo.sim.episode import EpisodeConfig, run_episode, summarize, write_outputs
 from evservo.sim.scene import DualArmScene
 
 FIXED = {"cost_model": "fixed", "seed": 1}

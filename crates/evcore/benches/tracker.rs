@@ -126,7 +126,7 @@ fn bench(c: &mut Criterion) {
     fill_core.ingest(&events).expect("ingest");
     let mut scratch = vec![0u8; roi.area()];
     c.bench_function("scarf_fill_mask_roi", |b| {
-        b.iter(|| fill_core.surface().fill_mask(black_box(roi), &mut scratch))
+        b.iter(|| fill_core.fill_mask(black_box(roi), &mut scratch))
     });
     let mut field = DistanceField::new(FieldParams::default()).expect("field");
     c.bench_function("field_build_level0", |b| {
