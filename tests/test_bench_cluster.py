@@ -106,3 +106,30 @@ def test_config_hash_follows_configuration_and_code():
     assert len({paper.episode_key(c) for c in rendered}) == len({paper.config_hash(c, code) for c in rendered})
     with pytest.raises(ValueError, match="event source"):
         paper.plan(quick=True, events="frames")
+
+
+def test_ctrl_c_cancels_the_clusters_tasks(cluster):
+    address, _ = cluster
+    code = (
+        "import time\n"
+        "from evservo.bench.cluster import run_tasks\n"
+        f"run_tasks({address!r}, time.sleep, {{'a': (60,), 'b': (60,)}}, print)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, text=True)
+    client = distributed.Client(address, timeout=30, set_as_default=False)
+    try:
+        deadline = time.monotonic() + 60
+        while not any(client.processing().values()):
+            assert time.monotonic() < deadline, "the tasks never started"
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode != 0 and "KeyboardInterrupt" in err
+        deadline = time.monotonic() + 20
+        while any(client.processing().values()):  # cancelled, not left sleeping on the workers
+            assert time.monotonic() < deadline, client.processing()
+            time.sleep(0.2)
+    finally:
+        client.close()
+        if proc.poll() is None:
+            proc.kill()
