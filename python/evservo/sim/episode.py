@@ -163,8 +163,8 @@ class EpisodeConfig:
             raise ValueError(f"unknown predictor {self.predictor!r}; choose one of {PREDICTORS}")
         if self.render_arms and self.event_source not in RENDERED_SOURCES:
             raise ValueError(
-                f"render_arms draws the arms in the rendered event camera: it needs event_source 'render', "
-                f"not {self.event_source!r}"
+                f"render_arms draws the arms in the rendered event camera: it needs a rendered event source "
+                f"{RENDERED_SOURCES} (--events render), not {self.event_source!r}"
             )
         if self.dropout_s is not None and not self.dropout_s[0] < self.dropout_s[1]:
             raise ValueError("dropout_s must be (start, end) with start < end")
