@@ -2,8 +2,8 @@
 
 use crate::camera::PyCamera;
 use crate::errors::to_py;
-use crate::pose::pose_arg;
 use crate::events::{records, EventArray};
+use crate::pose::pose_arg;
 use evcore::field::FieldParams;
 use evcore::se3::pose_to_matrix;
 use evcore::solve::{LmParams, SolverMode, StepKind};

@@ -163,15 +163,19 @@ struct PlaneRow<'a> {
 }
 
 impl PlaneRow<'_> {
+    /// Depth in metres of the plane seen by canvas pixel `x`; `None` if missed.
+    #[inline]
+    fn depth(&self, x: usize) -> Option<f64> {
+        let z = self.plane.d / (self.dn.0 + self.dn.1 * x as f64);
+        (z.is_finite() && z > NEAR_PLANE_M).then_some(z)
+    }
+
     /// (depth in metres, cell (i, j)) of the plane seen by canvas pixel `x`; `None` if missed.
     /// The one formula for both the full-frame and the sparse path, so they agree bit for bit.
     #[inline]
     fn cell(&self, x: usize) -> Option<(f64, (i64, i64))> {
         let xf = x as f64;
-        let z = self.plane.d / (self.dn.0 + self.dn.1 * xf);
-        if !(z.is_finite() && z > NEAR_PLANE_M) {
-            return None;
-        }
+        let z = self.depth(x)?;
         let px = (self.ax.0 + self.ax.1 * xf) * z + self.plane.bx;
         let py = (self.ay.0 + self.ay.1 * xf) * z + self.plane.by;
         Some((
@@ -1058,13 +1062,33 @@ fn composite(
             let k = r.index(b.x0 as u32, y as u32)?;
             Some((&r.depth_m[k..k + b.width()], &r.intensity[k..k + b.width()]))
         });
-        if let (Some(row), None) = (&row, mesh) {
-            // Background only: fill the row by bisection between pixels of one cell.
+        if let Some(row) = &row {
+            // Runs of background are filled by bisection between pixels of one cell; mesh pixels
+            // need only the plane's depth unless the plane is nearer (as the reference does it).
             let start = buf.len();
             buf.resize(start + b.width(), 0.0);
             let out = &mut buf[start..];
-            let (c0, c1) = (row.cell(b.x0), row.cell(b.x1));
-            row.fill(b.x0, c0, b.x1, c1, out);
+            let depth = mesh.map(|(d, _)| d);
+            let mut c = 0;
+            while c < out.len() {
+                let bg = |k: usize| depth.is_none_or(|d| !d[k].is_finite());
+                let end = (c..out.len())
+                    .find(|&k| bg(k) != bg(c))
+                    .unwrap_or(out.len());
+                if bg(c) {
+                    let (xa, xb) = (b.x0 + c, b.x0 + end - 1);
+                    row.fill(xa, row.cell(xa), xb, row.cell(xb), &mut out[c..end]);
+                } else if let Some((d, i)) = mesh {
+                    for k in c..end {
+                        let x = b.x0 + k;
+                        out[k] = match row.depth(x) {
+                            Some(z) if (z as f32) < d[k] => row.hit(x).1,
+                            _ => i[k],
+                        };
+                    }
+                }
+                c = end;
+            }
             continue;
         }
         for (c, x) in (b.x0..=b.x1).enumerate() {
