@@ -298,3 +298,46 @@ def test_tracking_a_bag_equals_tracking_the_raw_file(tmp_path):
     raw = (tmp_path / "raw" / "poses.csv").read_text()
     assert raw.count("\n") == 6  # header + 5 updates (1 ms slices over 4 ms of the grid)
     assert (tmp_path / "bagout" / "poses.csv").read_text() == raw
+
+
+def test_track_picks_a_bag_topic(tmp_path, capsys):
+    from evservo.cli import main
+
+    data, _ = evt3_sample()
+    packets = evt3_packets(data, np.array([4096]), 1280, 720)
+    write_bag(tmp_path / "bag", {"/a/events": (bags.EVENT_PACKET, packets), "/b/events": (bags.EVENT_PACKET, packets)})
+    common = ["--model", "box", "--init-pose", "0,0,0.6,0,0,0,1", "--max-seconds", "0.002", "--quiet"]
+    assert main(["track", str(tmp_path / "bag"), *common, "--out", str(tmp_path / "o1")]) == 2
+    assert "several event topics" in capsys.readouterr().err
+    assert main(["track", str(tmp_path / "bag"), *common, "--topic", "/b/events", "--out", str(tmp_path / "o2")]) == 0
+    assert (tmp_path / "o2" / "poses.csv").read_text().count("\n") == 4  # header + 3 updates
+
+
+@pytest.mark.parametrize("little_endian", [True, False])
+def test_event_array_cdr_parsing_handles_every_alignment(tmp_path, little_endian):
+    """Event arrays are parsed from their CDR bytes (little-endian) or through rosbags (big-endian):
+    frame ids of every length mod 4 and arrays of 0, 1, 2 and 7 events decode exactly."""
+    store = _store()
+    Event, Time = store.types["dvs_msgs/msg/Event"], store.types["builtin_interfaces/msg/Time"]
+    EventArray = store.types["dvs_msgs/msg/EventArray"]
+    rng = np.random.default_rng(7)
+    msgs, expected = [], []
+    for frame_id in ["", "a", "ab", "abc", "abcd"]:
+        for n in [0, 1, 2, 7]:
+            x, y = rng.integers(0, 346, n), rng.integers(0, 260, n)
+            p, sec, nsec = rng.integers(0, 2, n), rng.integers(0, 2**31 - 1, n), rng.integers(0, 10**9, n)
+            events = [Event(x=int(a), y=int(b), polarity=bool(c), ts=Time(sec=int(s), nanosec=int(q)))
+                      for a, b, c, s, q in zip(x, y, p, sec, nsec, strict=True)]  # fmt: skip
+            stamp = Time(sec=1, nanosec=2)
+            msg = EventArray(header=store.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id),
+                             height=260, width=346, events=events)  # fmt: skip
+            msgs.append(msg)
+            expected.append(np.rec.fromarrays([x, y, p, sec * 1_000_000 + nsec // 1000], names="x,y,p,t"))
+    with rosbag2.Writer(tmp_path / "bag", version=9, storage_plugin=rosbag2.StoragePlugin.MCAP) as w:
+        con = w.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=store)
+        for k, m in enumerate(msgs):
+            w.write(con, k + 1, store.serialize_cdr(m, "dvs_msgs/msg/EventArray", little_endian=little_endian))
+    back = io.read_events(tmp_path / "bag")
+    want = np.concatenate(expected)
+    for f in "xypt":
+        np.testing.assert_array_equal(back[f], want[f].astype(back[f].dtype))

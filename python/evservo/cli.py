@@ -6,10 +6,10 @@ import argparse
 import sys
 from typing import NoReturn
 
-from evservo.commands import bench, calib, demo, info, servo, sim, track
+from evservo.commands import bench, calib, demo, info, ros, servo, sim, track
 
 # Each module registers its own subcommand; add new ones here.
-COMMANDS = (bench, calib, demo, info, servo, sim, track)
+COMMANDS = (bench, calib, demo, info, ros, servo, sim, track)
 
 
 class UsageError(Exception):
@@ -17,12 +17,11 @@ class UsageError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with its errors raised, so that they end like every other bad input: the usage line,
-    then one ``evservo: error: …`` line, exit code 2 (subcommand parsers are of this class too)."""
+    """argparse with its errors raised, so that they end like every other bad input: one
+    ``evservo: error: …`` line, exit code 2 (subcommand parsers are of this class too)."""
 
     def error(self, message: str) -> NoReturn:
-        self.print_usage(sys.stderr)
-        raise UsageError(message)
+        raise UsageError(f"{message} (see {self.prog} --help)")
 
 
 def build_parser() -> argparse.ArgumentParser:

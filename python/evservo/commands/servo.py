@@ -110,7 +110,9 @@ def config_from_args(args: argparse.Namespace):
     values.update({field: getattr(args, opt) for opt, field in SIM_ONLY.items() if getattr(args, opt) is not None})
     if values.get("dropout_s") is not None:
         values["dropout_s"] = tuple(values["dropout_s"])
-    return EpisodeConfig(**values, tracker=args.tracker, duration_s=args.duration, feedforward=args.feedforward)
+    # The parsed values win over the command's defaults (demo's duration_s and feedforward among them).
+    values.update(tracker=args.tracker, duration_s=args.duration, feedforward=args.feedforward)
+    return EpisodeConfig(**values)
 
 
 def run_with_report(args: argparse.Namespace, default_out: Path, compare_paper_law: bool = False) -> int:
@@ -120,6 +122,11 @@ def run_with_report(args: argparse.Namespace, default_out: Path, compare_paper_l
     from evservo.outputs import prepare_out_dir
     from evservo.sim.episode import OUTPUTS
 
+    events = args.events if args.events is not None else args.episode_defaults.get("event_source", "edges")
+    if args.render_arms and events != "render":
+        raise ValueError(
+            f"--render-arms draws the arms in the rendered event camera: needs --events render, not --events {events}"
+        )
     cfg = config_from_args(args)
     literal = compare_paper_law and cfg.feedforward
     # Checked, and cleared of an earlier run's files, before the run: never fails after it.

@@ -28,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
             s = track_file(
                 args.recording, solver, outs[solver], model=args.model, init_pose=init,
                 camera=camera, frontend=args.frontend, batch_us=args.batch_us, max_seconds=args.max_seconds,
-                progress=not args.quiet, notes=notes, viewer=viewer,
+                progress=not args.quiet, notes=notes, viewer=viewer, topic=args.topic,
             )  # fmt: skip
         finally:
             if viewer is not None:
@@ -83,6 +83,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--compare", action="store_true", help="run edft+, edopts and edft; outputs in OUT/<solver>")
     t.add_argument("--model", help="object: built-in name or mesh path (default: the recording's)")
     t.add_argument("--init-pose", help="initial T_c_o as x,y,z,qx,qy,qz,qw (default: the recording's ground truth)")
+    t.add_argument("--topic", help="the event topic of a ROS bag holding several")
     t.add_argument("--camera", help="camera file (YAML/JSON; evservo's layout, OpenCV YAML or ROS camera_info)")
     t.add_argument("--batch-us", type=int, default=1000, help="events per update, as a time slice (µs)")
     t.add_argument("--max-seconds", type=float, help="track only the first seconds of the recording")

@@ -35,14 +35,14 @@ def track_file(
     path: str | Path, solver: str, out: Path, *, model: str | None = None, init_pose: np.ndarray | None = None,
     camera: _evcore.Camera | None = None, frontend: str = "scarf", batch_us: int = 1000,
     max_seconds: float | None = None, progress: bool = True, notes: list[str] | None = None,
-    viewer: Any = None,
+    viewer: Any = None, topic: str | None = None,
 ) -> dict:  # fmt: skip
     """Track one recording with one solver and write the outputs to ``out``; returns the summary.
 
     ``model``, ``init_pose`` (``T_c_o`` at the first event, 4×4) and ``camera`` default to what a
     simulated recording carries (the IMX636 for a bare 1280×720 file); ``notes`` collects lines about
     such choices for the user. ``viewer`` (a :class:`~evservo.viewer.RerunViewer`) is shown every
-    update; the caller closes it."""
+    update; the caller closes it. ``topic`` picks the event topic of a ROS bag."""
     from tqdm import tqdm
 
     from evservo import bags, events, io
@@ -50,7 +50,7 @@ def track_file(
     from evservo.tracking import Tracker
 
     path = Path(path) if bags.is_bag(Path(path)) else require_regular_file(path, "recording")
-    meta = io.info(path)
+    meta = io.info(path, topic)
     rec = load_recording(path) if is_recording(path) else None
     cam = resolve_camera(
         str(path), (meta["width"], meta["height"]), camera, rec.camera if rec else None, "give --camera FILE", notes
@@ -81,7 +81,7 @@ def track_file(
     bar = tqdm(total=n_slices, unit="batch", desc=f"{solver:>7}", disable=not progress, leave=False)
     interrupted = False
     with StopOnInterrupt() as stop:
-        for k, ev in enumerate(io.open_events(path, delta_t_us=batch_us)):
+        for k, ev in enumerate(io.open_events(path, delta_t_us=batch_us, topic=topic)):
             if stop.requested:  # Ctrl-C: keep what was tracked, marked as interrupted
                 interrupted = True
                 break

@@ -45,9 +45,11 @@ from evservo import _evcore, geometry, trajectories
 from evservo.control import Pbvs
 from evservo.geometry import pose_errors, rotation_from_first_rad
 from evservo.interrupt import INTERRUPTED, StopOnInterrupt
+from evservo.limits import CartesianLimits
 from evservo.outputs import make_out_dir
 from evservo.robots import PoseFollower, shift_twist
 from evservo.robots.delay import DelayedArm
+from evservo.robots.limits import PANDA_CARTESIAN
 from evservo.robots.reach import ReachableTwist
 from evservo.runtime.metrics import estimate_lag_s, rms
 from evservo.runtime.report import plot_motion, write_log, write_summary
@@ -86,9 +88,10 @@ class EpisodeConfig:
     ``lost_pos_m``, ``lost_rot_deg``: tracking counts as lost, and the episode ends, once the estimate
     is this far from the truth at the estimate's time.
     ``feedforward``: our controller (the target's motion fed forward, within what the Panda can deliver
-    at its configuration, image motion first, catch-up no faster than ``max_image_rate_rad_s``);
-    off: the paper's literal Eq. (5)–(6). ``predictor``: how feed-forward extrapolates the target
-    across the pose's age and the Panda's command latency: ``"velocity"`` (constant velocity) or
+    at its configuration, image motion first, catch-up no faster than ``max_image_rate_rad_s``; the
+    camera up to the Panda's own Cartesian limits); off: the paper's literal Eq. (5)–(6) (within
+    :class:`~evservo.limits.CartesianLimits`' defaults, half of those). ``predictor``: how feed-forward
+    extrapolates the target across the pose's age and the Panda's command latency: ``"velocity"`` (constant velocity) or
     ``"acceleration"`` (constant acceleration).
     Timing (seconds): ``sensing_latency_s`` from an event to the tracker (3.5 ms, the paper's
     measurement); the tracker's compute per ``cost_model``; the controller every ``control_period_s``;
@@ -353,6 +356,7 @@ def run_episode(
         period_s=cfg.control_period_s,
         max_image_rate_rad_s=cfg.max_image_rate_rad_s,
         reach=ReachableTwist(scene.panda) if cfg.feedforward else None,
+        limits=PANDA_CARTESIAN if cfg.feedforward else None,
         lookahead_s=cfg.panda_latency_s,
         predict_accel=cfg.predictor == "acceleration",
     )
@@ -479,16 +483,25 @@ def timing(result: EpisodeResult) -> dict:
 
 
 def gave_out(result: EpisodeResult, window_s: float = 0.5) -> str | None:
-    """Why an episode ended early: ``"arm"`` when, in the ``window_s`` before, the Panda was at a joint
-    velocity limit or the controller's command had to be cut to what it could deliver; ``"tracker"``
-    when tracking was lost without that; the end reason otherwise; None when it ran its course."""
+    """Why an episode ended early: ``"tracker"`` when, in the ``window_s`` before, the watchdog braked
+    for want of fresh poses; else ``"arm"`` when the Panda was at a joint velocity limit, or the
+    controller's command was at its Cartesian velocity limit or cut to what the arm could deliver
+    most of the time; else ``"tracker"``; the end reason when it was not tracking loss; None when it
+    ran its course."""
     r = result
     if r.ended == "duration":
         return None
     if r.ended != "tracking lost":
         return r.ended
     recent = r.t_s >= r.t_s[-1] - window_s if len(r.t_s) else np.zeros(0, bool)
-    at_limit = np.any(r.joint_speed_ratio[recent] > 0.99) or np.any(r.arm_limited[recent])
+    L = PANDA_CARTESIAN if r.config.feedforward else CartesianLimits()
+    v = r.v_cmd_w[recent]
+    at_cartesian = np.any(np.linalg.norm(v[:, :3], axis=1) >= 0.999 * L.max_lin_vel) or np.any(
+        np.linalg.norm(v[:, 3:], axis=1) >= 0.999 * L.max_ang_vel
+    )
+    if np.any(r.watchdog[recent]):
+        return "tracker"
+    at_limit = np.any(r.joint_speed_ratio[recent] > 0.99) or np.mean(r.arm_limited[recent]) > 0.5 or at_cartesian
     return "arm" if at_limit else "tracker"
 
 
