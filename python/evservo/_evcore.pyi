@@ -196,8 +196,12 @@ class SimCamera:
         ambient: float = 0.35,
         diffuse: float = 0.65,
         margin_px: int = 4,
+        sparse: bool = True,
         **overrides: float,
-    ) -> SimCamera: ...
+    ) -> SimCamera:
+        """``sparse``: redraw and step only the tiles that can change (default); False is the
+        full-frame reference path, with the same events."""
+        ...
     def advance(
         self, T_c_o: _F64, t_us: int, T_c_bg: _F64 | None = None, occluders: _F64 | None = None
     ) -> npt.NDArray[np.void]:

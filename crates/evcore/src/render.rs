@@ -212,6 +212,8 @@ fn setup(
 pub struct Renderer {
     verts_c: Vec<Vector3<f64>>,
     tris: Vec<Tri>,
+    /// Region the prepared triangles were clipped to, and the scene's mesh count.
+    prepared: Option<(Roi, usize)>,
     bins: Vec<Vec<u32>>,
     out: Rendered,
 }
@@ -255,6 +257,31 @@ impl Renderer {
         opts: &RenderOptions,
     ) -> Result<&Rendered> {
         let roi = roi.unwrap_or(Roi::full(camera.width, camera.height));
+        self.prepare_scene(scene, camera, Some(roi), opts)?;
+        self.draw_prepared(scene, camera, roi, opts)
+    }
+
+    /// Screen boxes of the prepared triangles: (mesh index in the scene, [x_lo, x_hi, y_lo, y_hi])
+    /// in inclusive pixels, clipped to the prepared region. A pixel no box contains shows no mesh.
+    pub fn triangle_boxes(&self) -> impl Iterator<Item = (u32, [i64; 4])> + '_ {
+        self.tris
+            .iter()
+            .map(|t| (t.mesh, [t.x_lo, t.x_hi, t.y_lo, t.y_hi]))
+    }
+
+    /// First half of [`Self::render_scene_into`]: validate, pose, near-clip and project the
+    /// scene's triangles for `region` (the full image when `None`), without drawing. Then
+    /// [`Self::triangle_boxes`] tells where the scene can be, and [`Self::draw_prepared`] draws
+    /// any sub-region with exactly the pixels a direct render of it would give.
+    pub fn prepare_scene(
+        &mut self,
+        scene: &[(&Mesh, &Pose)],
+        camera: &Camera,
+        region: Option<Roi>,
+        opts: &RenderOptions,
+    ) -> Result<()> {
+        let roi = region.unwrap_or(Roi::full(camera.width, camera.height));
+        self.prepared = None;
         ensure(roi.width > 0 && roi.height > 0, || {
             format!("render region {roi:?} is empty")
         })?;
@@ -354,6 +381,43 @@ impl Renderer {
                     })
                 }));
         }
+        self.prepared = Some((roi, scene.len()));
+        Ok(())
+    }
+
+    /// Second half of [`Self::render_scene_into`]: draw the triangles of the last
+    /// [`Self::prepare_scene`] into `roi`, which must lie inside the prepared region. `scene`
+    /// must be the prepared one (its meshes give the shading).
+    pub fn draw_prepared(
+        &mut self,
+        scene: &[(&Mesh, &Pose)],
+        camera: &Camera,
+        roi: Roi,
+        opts: &RenderOptions,
+    ) -> Result<&Rendered> {
+        let Some((region, n_meshes)) = self.prepared else {
+            return Err(crate::Error::InvalidArgument(
+                "draw_prepared before prepare_scene".into(),
+            ));
+        };
+        ensure(
+            n_meshes == scene.len()
+                && roi.width > 0
+                && roi.height > 0
+                && roi.x0 >= region.x0
+                && roi.y0 >= region.y0
+                && roi.x0 + roi.width <= region.x0 + region.width
+                && roi.y0 + roi.height <= region.y0 + region.height,
+            || {
+                format!("draw region {roi:?} is empty or outside the prepared {region:?}, or the scene changed")
+            },
+        )?;
+        let bounds = [
+            i64::from(roi.x0),
+            i64::from(roi.x0 + roi.width) - 1,
+            i64::from(roi.y0),
+            i64::from(roi.y0 + roi.height) - 1,
+        ];
         let meshes: Vec<&Mesh> = scene.iter().map(|(m, _)| *m).collect();
 
         let (w, h) = (roi.width as usize, roi.height as usize);
@@ -361,8 +425,12 @@ impl Renderer {
         self.bins.resize_with(n_bands, Vec::new);
         self.bins.iter_mut().for_each(Vec::clear);
         for (id, t) in self.tris.iter().enumerate() {
-            let first = (t.y_lo - bounds[2]) as usize / BAND_ROWS;
-            let last = (t.y_hi - bounds[2]) as usize / BAND_ROWS;
+            let (y_lo, y_hi) = (t.y_lo.max(bounds[2]), t.y_hi.min(bounds[3]));
+            if t.x_hi < bounds[0] || t.x_lo > bounds[1] || y_lo > y_hi {
+                continue;
+            }
+            let first = (y_lo - bounds[2]) as usize / BAND_ROWS;
+            let last = (y_hi - bounds[2]) as usize / BAND_ROWS;
             for bin in &mut self.bins[first..=last] {
                 bin.push(id as u32);
             }
@@ -434,6 +502,12 @@ fn rasterize_band(tris: &[Tri], bin: &[u32], band: &Band, inv_z: &mut [f32], ids
         for y in t.y_lo.max(band.y0)..=t.y_hi.min(y_end) {
             let yf = y as f64;
             let Some((xs, xe)) = t.span(yf) else { continue };
+            // Clipping to the band's columns here equals clipping the box at setup: the bounds
+            // are integers, so they commute with the span's rounding.
+            let (xs, xe) = (xs.max(band.x0), xe.min(band.x0 + band.width as i64 - 1));
+            if xs > xe {
+                continue;
+            }
             let row = (y - band.y0) as usize * band.width;
             // 1/z is affine along the row, so step it instead of re-evaluating the barycentrics.
             let iz_a = t.a[0] * t.inv_z[0] + t.a[1] * t.inv_z[1] + t.a[2] * t.inv_z[2];

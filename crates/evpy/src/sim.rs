@@ -68,6 +68,10 @@ fn apply_override(p: &mut SimParams, key: &str, value: &Bound<'_, PyAny>) -> PyR
         "shot_noise_rate_hz" => p.shot_noise_rate_hz = value.extract()?,
         "shot_noise_bright_factor" => p.shot_noise_bright_factor = value.extract()?,
         "log_eps" => p.log_eps = value.extract()?,
+        "hot_pixel_fraction" => p.hot_pixel_fraction = value.extract()?,
+        "hot_pixel_rate_hz" => p.hot_pixel_rate_hz = value.extract()?,
+        "flicker_hz" => p.flicker_hz = value.extract()?,
+        "flicker_depth" => p.flicker_depth = value.extract()?,
         _ => {
             return Err(PyTypeError::new_err(format!(
                 "EventSimulator got an unexpected parameter {key:?}"

@@ -25,16 +25,20 @@ pub struct PySimCamera {
 #[pymethods]
 impl PySimCamera {
     /// SimCamera(camera, mesh, preset="imx636", seed=0, T_c_bg=None, cell_m=0.04,
-    ///           background_intensity=0.1, ambient=0.35, diffuse=0.65, margin_px=4, **overrides)
+    ///           background_intensity=0.1, ambient=0.35, diffuse=0.65, margin_px=4, sparse=True,
+    ///           **overrides)
     ///
     /// A rendered event camera. `camera`: the sensor, with distortion. `mesh`: the object.
     /// Background: with `T_c_bg` (4×4, plane frame in camera; the plane is its z = 0) a plane
     /// of `cell_m`-metre cells of high-contrast albedo, else the uniform `background_intensity`.
     /// `preset` and `overrides` configure the sensor model as for `EventSimulator`; `seed`
     /// seeds the sensor and the background texture. `margin_px`: ROI growth in pixels.
+    /// `sparse`: redraw only the tiles that can change (default); False is the full-frame
+    /// reference path, with the same events (see `SimCamera::set_sparse`).
     #[new]
     #[pyo3(signature = (camera, mesh, preset="imx636", seed=0, T_c_bg=None, cell_m=0.04,
-        background_intensity=0.1, ambient=0.35, diffuse=0.65, margin_px=4, **overrides))]
+        background_intensity=0.1, ambient=0.35, diffuse=0.65, margin_px=4, sparse=true,
+        **overrides))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -48,6 +52,7 @@ impl PySimCamera {
         ambient: f32,
         diffuse: f32,
         margin_px: u32,
+        sparse: bool,
         overrides: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         let params = params_from(preset, seed, overrides)?;
@@ -65,9 +70,10 @@ impl PySimCamera {
             background: 0.0,
         };
         let (cam, m) = (camera.inner, mesh.inner.clone());
-        let inner = py
+        let mut inner = py
             .detach(move || SimCamera::new(cam, m, opts, background, params, margin_px))
             .map_err(to_py)?;
+        inner.set_sparse(sparse);
         Ok(Self {
             inner,
             out: EventBatch::default(),

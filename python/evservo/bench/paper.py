@@ -15,17 +15,26 @@ tracker cost):
   reversal trajectories.
 
 Every episode writes its own directory (``episodes/<key>/summary.json``, ``log.csv``,
-``motion.png``); a rerun reuses finished episodes, so an interrupted run resumes.
+``motion.png``, ``config_hash``); a rerun reuses a finished episode whose ``config_hash`` (a content
+hash of its configuration and of the code: evservo's Python sources and compiled core) still matches,
+so an interrupted run resumes, and a run on other machines (``--scheduler``, see
+:mod:`evservo.bench.cluster`) is reused by a later one anywhere the directory is.
+
+``events="render"`` runs the same plan on the rendered reference camera: the ``render-lab`` source
+(the ``lab`` realism preset: IMX636 noise, hot pixels, 100 Hz flicker, cluttered background) with the
+robot arms drawn; ``--quick`` episodes are then 0.3 s long (the renderer runs well below real time).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import multiprocessing
 import os
 import platform
 import shutil
 import signal
+import tempfile
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -59,11 +68,20 @@ METRICS = (
 )
 
 
-def plan(quick: bool) -> list[tuple[str, EpisodeConfig]]:
+#: Event sources of the suite: the idealised edges, or the rendered reference camera with the arms.
+EVENTS = ("edges", "render")
+
+
+def plan(quick: bool, events: str = "edges") -> list[tuple[str, EpisodeConfig]]:
     """(section, config) of every episode of the suite."""
-    dur = 3.0 if quick else 20.0
+    if events not in EVENTS:
+        raise ValueError(f"unknown event source {events!r} for the paper suite; choose one of {EVENTS}")
+    rendered = events == "render"
+    dur = (0.3 if rendered else 3.0) if quick else 20.0
     seeds = (1,) if quick else (1, 2, 3)
     base = EpisodeConfig(duration_s=dur)
+    if rendered:
+        base = replace(base, event_source="render-lab", render_arms=True)
     table1 = [(0.9, "trans", s) for s in ((0.3,) if quick else (0.2, 0.3, 0.4))]
     table1 += [(0.6, "trans", 0.3), (0.6, "trans-rot", 0.3)]
     out: list[tuple[str, EpisodeConfig]] = []
@@ -96,10 +114,37 @@ def plan(quick: bool) -> list[tuple[str, EpisodeConfig]]:
 def episode_key(cfg: EpisodeConfig) -> str:
     ff = ("-ff" + ("-acc" if cfg.predictor == "acceleration" else "")) if cfg.feedforward else ""
     fe = "" if cfg.frontend == "scarf" else f"-{cfg.frontend}"
+    ev = "" if cfg.event_source == "edges" else f"-{cfg.event_source}{'-arms' if cfg.render_arms else ''}"
     return (
         f"{cfg.object}-z{cfg.distance_m:g}-{cfg.trajectory}-v{cfg.speed_mps:g}-{cfg.tracker}{fe}{ff}"
-        f"-s{cfg.seed}-d{cfg.duration_s:g}"
+        f"-s{cfg.seed}-d{cfg.duration_s:g}{ev}"
     )
+
+
+def code_version() -> str:
+    """Content hash of the code an episode runs: evservo's Python sources and its compiled core."""
+    import evservo._evcore as core
+
+    pkg = Path(evservo.__file__).parent
+    h = hashlib.sha256()
+    for path in [*sorted(pkg.rglob("*.py")), Path(core.__file__)]:
+        h.update(str(path.relative_to(pkg)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def config_hash(cfg: EpisodeConfig, code: str) -> str:
+    """Content hash of an episode: its configuration and the code version ``code``."""
+    text = json.dumps(asdict(cfg), sort_keys=True, default=str) + code
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _remote_episode(cfg: EpisodeConfig) -> tuple[dict, dict[str, bytes]]:
+    """One episode on a cluster worker: its summary and its output files' contents, which the
+    submitting process writes into its own ``--out``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = _run_one(cfg, tmp)
+        return summary, {p.name: p.read_bytes() for p in Path(tmp).iterdir() if p.is_file()}
 
 
 def _run_one(cfg: EpisodeConfig, out_dir: str) -> dict:
@@ -111,6 +156,8 @@ def _run_one(cfg: EpisodeConfig, out_dir: str) -> dict:
         # A partial episode must not be written: the next run would reuse it as finished.
         raise KeyboardInterrupt
     write_outputs(result, out_dir, summary)
+    # Written last: only a complete episode directory carries the hash that marks it reusable.
+    (Path(out_dir) / "config_hash").write_text(config_hash(cfg, code_version()))
     return summary
 
 
@@ -132,24 +179,46 @@ def _load_summary(path: Path) -> dict:
         raise ValueError(f"{path}: unreadable episode summary ({e}); delete it to rerun the episode") from None
 
 
-def run_all(out: Path, quick: bool, jobs: int) -> tuple[list[tuple[str, str, EpisodeConfig, dict]], int]:
-    """Run (or reuse) every episode; returns (section, key, config, summary) per planned row and how
-    many episodes were reused from an earlier run. A configuration that several sections share runs
-    once."""
+def run_all(
+    out: Path, quick: bool, jobs: int, events: str = "edges", scheduler: str | None = None
+) -> tuple[list[tuple[str, str, EpisodeConfig, dict]], int]:
+    """Run (or reuse) every episode, locally (``jobs`` processes) or on the dask cluster at
+    ``scheduler``; returns (section, key, config, summary) per planned row and how many episodes were
+    reused from an earlier run. A configuration that several sections share runs once. An episode the
+    cluster gave up on has the summary ``{"completed": False, "failed": reason}``."""
     from tqdm import tqdm
 
-    rows = [(section, episode_key(cfg), cfg) for section, cfg in plan(quick)]
+    rows = [(section, episode_key(cfg), cfg) for section, cfg in plan(quick, events)]
+    code = code_version()
     summaries: dict[str, dict] = {}
     todo: dict[str, EpisodeConfig] = {}
     for _, key, cfg in rows:
-        path = out / "episodes" / key / "summary.json"
-        if path.exists():
-            summaries[key] = _load_summary(path)
+        ep = out / "episodes" / key
+        stamp = ep / "config_hash"
+        if (ep / "summary.json").exists() and stamp.exists() and stamp.read_text() == config_hash(cfg, code):
+            summaries[key] = _load_summary(ep / "summary.json")
         else:
             todo[key] = cfg
+    reused = len(summaries)
     bar = tqdm(total=len(todo) + len(summaries), initial=len(summaries), unit="episode", desc="paper suite")
     with bar:
-        if jobs <= 1:
+        if scheduler is not None:
+            from evservo.bench.cluster import run_tasks
+
+            def done(key: str, result: tuple[dict, dict[str, bytes]]) -> None:
+                summary, files = result
+                ep = out / "episodes" / key
+                ep.mkdir(parents=True, exist_ok=True)
+                for name, data in files.items():
+                    (ep / name).write_bytes(data)
+                summaries[key] = summary
+                bar.update()
+
+            failed = run_tasks(scheduler, _remote_episode, {k: (cfg,) for k, cfg in todo.items()}, done)
+            for key, reason in failed.items():
+                summaries[key] = {"completed": False, "failed": reason}
+                bar.update()
+        elif jobs <= 1:
             for key, cfg in todo.items():
                 summaries[key] = _run_one(cfg, str(out / "episodes" / key))
                 bar.update()
@@ -171,7 +240,7 @@ def run_all(out: Path, quick: bool, jobs: int) -> tuple[list[tuple[str, str, Epi
                 raise
             finally:
                 pool.join()
-    return [(section, key, cfg, summaries[key]) for section, key, cfg in rows], len(summaries) - len(todo)
+    return [(section, key, cfg, summaries[key]) for section, key, cfg in rows], reused
 
 
 def _fmt(values: list[float]) -> str:
@@ -191,8 +260,16 @@ def _paper(obj: str, z: float, traj: str, tracker: str) -> str:
 
 
 def report(
-    out: Path, episodes: list[tuple[str, str, EpisodeConfig, dict]], quick: bool, wall_s: float, reused: int = 0
+    out: Path,
+    episodes: list[tuple[str, str, EpisodeConfig, dict]],
+    quick: bool,
+    wall_s: float,
+    reused: int = 0,
+    events: str = "edges",
 ) -> str:
+    events_flag = "" if events == "edges" else f" --events {events}"
+    failed = {key: s["failed"] for _, key, _, s in episodes if "failed" in s}
+    episodes = [e for e in episodes if "failed" not in e[3]]
     groups: dict[tuple, list[dict]] = {}
     for section, key, cfg, s in episodes:
         g = (section, cfg.object, cfg.distance_m, cfg.trajectory, cfg.speed_mps, cfg.tracker, cfg.frontend,
@@ -201,7 +278,7 @@ def report(
     lines = [
         "# evservo paper suite",
         "",
-        f"Command: `evservo bench --suite paper{' --quick' if quick else ''} --jobs N --out {out}`; "
+        f"Command: `evservo bench --suite paper{' --quick' if quick else ''}{events_flag} --jobs N --out {out}`; "
         f"evservo {evservo.__version__}, Python {platform.python_version()}, {os.cpu_count()} CPUs, "
         f"{len({key for _, key, _, _ in episodes}) - reused} episodes run in {wall_s / 60:.1f} min"
         f"{f' ({reused} reused from an earlier run)' if reused else ''}, "
@@ -325,20 +402,24 @@ def report(
                 f"- {name}: servo error {pos:.1f} mm / {rot:.2f}° against the paper's {p_ref:.1f} mm / {r_ref:.2f}° "
                 f"({pos / p_ref:.2g}× / {rot / r_ref:.2g}×)."
             )
+    for key, reason in sorted(failed.items()):
+        lines.append(f"- episode {key} FAILED on the cluster (after one retry): {reason}")
     lines.append("")
     text = "\n".join(lines) + "\n"
     (out / "report.md").write_text(text)
     return text
 
 
-def run(out: Path, quick: bool = False, jobs: int = 1) -> dict:
+def run(out: Path, quick: bool = False, jobs: int = 1, events: str = "edges", scheduler: str | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    episodes, reused = run_all(out, quick, jobs)
+    episodes, reused = run_all(out, quick, jobs, events, scheduler)
     wall = time.perf_counter() - t0
-    report(out, episodes, quick, wall, reused)
+    report(out, episodes, quick, wall, reused, events)
+    where = f"--scheduler {scheduler}" if scheduler else f"--jobs {jobs}"
+    flags = f"{' --quick' if quick else ''}{'' if events == 'edges' else f' --events {events}'}"
     results = {
-        "command": f"evservo bench --suite paper{' --quick' if quick else ''} --jobs {jobs} --out {out}",
+        "command": f"evservo bench --suite paper{flags} {where} --out {out}",
         "evservo": evservo.__version__,
         "episodes": [{"section": sec, "key": k, "config": asdict(cfg), "summary": s} for sec, k, cfg, s in episodes],
     }

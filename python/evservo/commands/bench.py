@@ -26,10 +26,12 @@ def run(args: argparse.Namespace) -> int:
     if args.suite == "paper":
         from evservo.bench import paper
 
-        paper.run(Path(args.out), quick=args.quick, jobs=args.jobs)
+        paper.run(Path(args.out), quick=args.quick, jobs=args.jobs, events=args.events, scheduler=args.scheduler)
         print(f"wrote {Path(args.out) / 'report.md'} and results.json")
-        _refresh(args, "paper", Path(args.out) / "report.md")
+        _refresh(args, "paper" if args.events == "edges" else f"paper-{args.events}", Path(args.out) / "report.md")
         return 0
+    if args.events != "edges" or args.scheduler is not None:
+        raise ValueError("--events and --scheduler apply to the paper suite only")
     from evservo.bench import latency
 
     samples = Path(os.environ.get("EVSERVO_SAMPLES", Path(__file__).resolve().parents[4] / "shared/event-samples"))
@@ -64,6 +66,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--out", default="out/bench", help="output directory")
     b.add_argument("--quick", action="store_true", help="short runs, one seed (for tests)")
     b.add_argument("--jobs", type=int, default=1, help="episodes run in parallel processes (paper suite)")
+    b.add_argument(
+        "--events",
+        choices=("edges", "render"),
+        default="edges",
+        help="paper suite event source: the idealised edges, or the rendered camera (lab preset, arms drawn)",
+    )
+    b.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="run the paper suite's episodes on this running dask.distributed cluster instead of --jobs",
+    )
     b.add_argument(
         "--results",
         metavar="MD",

@@ -56,7 +56,7 @@ from evservo.runtime.report import plot_motion, write_log, write_summary
 from evservo.runtime.watchdog import WatchdogSpell, spells_from_flags
 from evservo.sim.arms import ArmMeshes
 from evservo.sim.scene import DualArmScene
-from evservo.sim.sources import EVENT_SOURCES, EventSource, make_event_source
+from evservo.sim.sources import EVENT_SOURCES, RENDERED_SOURCES, EventSource, make_event_source
 from evservo.tracking import FRONTENDS, SOLVERS, Tracker
 
 COST_MODELS = ("measured", "fixed")
@@ -164,10 +164,10 @@ class EpisodeConfig:
             raise ValueError("command latencies must be >= 0 and max_image_rate_rad_s > 0")
         if self.predictor not in PREDICTORS:
             raise ValueError(f"unknown predictor {self.predictor!r}; choose one of {PREDICTORS}")
-        if self.render_arms and self.event_source != "render":
+        if self.render_arms and self.event_source not in RENDERED_SOURCES:
             raise ValueError(
-                f"render_arms draws the arms in the rendered event camera: it needs event_source 'render', "
-                f"not {self.event_source!r}"
+                f"render_arms draws the arms in the rendered event camera: it needs a rendered event source "
+                f"{RENDERED_SOURCES} (--events render), not {self.event_source!r}"
             )
         if self.dropout_s is not None and not self.dropout_s[0] < self.dropout_s[1]:
             raise ValueError("dropout_s must be (start, end) with start < end")

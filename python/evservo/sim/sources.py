@@ -14,6 +14,7 @@ takes the links' poses in the camera (``occluders``).
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -54,10 +55,17 @@ def edge_source(camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, t0_us: int
     )
 
 
+# Realism presets of the rendered camera: name -> (sensor preset, background cell side in metres).
+# ``lab`` is the rendered reference suite's: the ``lab`` sensor preset (IMX636 noise and refractory
+# period, hot pixels, 100 Hz mains flicker on every lit surface; its flicker_hz/flicker_depth are
+# documented in crates/evcore/src/sim/params.rs) and a cluttered background of 2 cm cells.
+REALISM: dict[str, tuple[str, float]] = {"imx636": ("imx636", 0.04), "lab": ("lab", 0.02)}
+
+
 class RenderedSource:
     """The rendered event camera (:class:`evservo._evcore.SimCamera`: textured object and a textured
-    background plane, the lens's distortion, the ESIM-style sensor model with the ``imx636`` noise
-    preset) looking at the scene from the moving camera.
+    background plane, the lens's distortion, the ESIM-style sensor model with the noise preset of
+    ``realism``, see :data:`REALISM`) looking at the scene from the moving camera.
 
     The background plane is fixed in the world, 0.6 m behind the object's start position, so when the
     camera follows the object the world behind it streams past and fires, as on the real bench.
@@ -80,13 +88,17 @@ class RenderedSource:
         t0_us: int,
         seed: int,
         arms: ArmMeshes | None = None,
+        realism: str = "imx636",
     ) -> None:
         from evservo.models import load_object, to_core_mesh
         from evservo.sim.record import background_pose
 
+        if realism not in REALISM:
+            raise ValueError(f"unknown realism preset {realism!r}; choose one of {sorted(REALISM)}")
+        preset, cell_m = REALISM[realism]
         self.T_c_bg0 = background_pose(float(T_c_o0[2, 3]), self.BACKGROUND_BEHIND_M)
         mesh = to_core_mesh(load_object(obj))
-        self.sim = _evcore.SimCamera(camera, mesh, preset="imx636", seed=seed, T_c_bg=self.T_c_bg0)
+        self.sim = _evcore.SimCamera(camera, mesh, preset=preset, seed=seed, T_c_bg=self.T_c_bg0, cell_m=cell_m)
         self.T_w_bg: np.ndarray | None = None
         self.t_us, self.T_c_o, self.T_c_bg = int(t0_us), T_c_o0, self.T_c_bg0
         self.occ: np.ndarray | None = None
@@ -139,7 +151,13 @@ class RenderedSource:
         return events[events["t"] < t1]
 
 
-EVENT_SOURCES: dict[str, SourceFactory] = {"edges": edge_source, "render": RenderedSource}
+EVENT_SOURCES: dict[str, SourceFactory] = {
+    "edges": edge_source,
+    "render": RenderedSource,
+    "render-lab": partial(RenderedSource, realism="lab"),
+}
+# The sources that render the scene (and can draw the arms).
+RENDERED_SOURCES = ("render", "render-lab")
 
 
 def make_event_source(
@@ -156,7 +174,7 @@ def make_event_source(
     if name not in EVENT_SOURCES:
         raise ValueError(f"unknown event source {name!r}; choose one of {sorted(EVENT_SOURCES)}")
     if arms is not None:
-        if name != "render":
-            raise ValueError(f"rendering the arms needs the 'render' event source, not {name!r}")
-        return RenderedSource(camera, obj, T_c_o0, t0_us, seed, arms=arms)
+        if name not in RENDERED_SOURCES:
+            raise ValueError(f"rendering the arms needs a rendered event source {RENDERED_SOURCES}, not {name!r}")
+        return EVENT_SOURCES[name](camera, obj, T_c_o0, t0_us, seed, arms=arms)  # type: ignore[call-arg]
     return EVENT_SOURCES[name](camera, obj, T_c_o0, t0_us, seed)

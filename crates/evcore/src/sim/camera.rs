@@ -26,6 +26,20 @@
 //!   noise-free parameters it gives exactly the events of a full-frame step (tested); with noise,
 //!   pixels outside the region emit no noise (see the simulator's ROI notes). A new background
 //!   pose, a vertex at or behind the near plane, or the first frame force a full frame.
+//! * **Flicker.** With `flicker_hz` and `flicker_depth` set (the `lab` preset), every lit
+//!   surface (all of them: object, occluders and background are lit by the room's lamps) is
+//!   multiplied by [`SimParams::flicker_gain`] at each frame time before the sensor step; every
+//!   frame then steps the whole sensor. Between frames the sensor interpolates log intensity
+//!   linearly, so frames must come well above twice the flicker frequency (the closed loop
+//!   renders at ≥ 1 kHz against 100 Hz).
+//! * **Sparse frames** (default). A raw tile can only change if its canvas box holds a
+//!   background cell edge at the previous or the current frame, or meets the screen box of a
+//!   triangle of a mesh that moved, at either pose. Only those tiles are redrawn (background by
+//!   bisection between pixels of one cell, meshes in the bounding box of the tiles they touch);
+//!   a redrawn tile whose canvas values did not change is dropped too, and the sensor steps the
+//!   rest ([`EventSimulator::step_tiles`]), catching skipped pixels up on leak. The events equal
+//!   the reference path's (`set_sparse(false)`: full frames while the background moves, the
+//!   changed region otherwise) bit for bit without leak, up to f32 rounding with it (tested).
 //! * **Occluders.** Further meshes (e.g. the robot arms) set by [`SimCamera::set_occluders`] and
 //!   posed per frame in [`SimCamera::advance_scene`] are rendered with the object into one
 //!   z-tested buffer, shaded like the object. An occluder whose pose changed since the previous
@@ -38,7 +52,8 @@ use crate::image::Roi;
 use crate::mesh::Mesh;
 use crate::render::{RenderOptions, Renderer, NEAR_PLANE_M};
 use crate::se3::Pose;
-use crate::sim::{EventSimulator, SimParams};
+use crate::sim::tiles::{tile_boxes, CanvasBox, Coverage};
+use crate::sim::{EventSimulator, SimParams, TILE_PX};
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -120,23 +135,103 @@ impl PlaneInCamera {
         }
     }
 
-    /// (depth in metres, intensity) of the plane along the ray (rx, ry, 1); `None` if missed.
-    #[inline]
-    fn hit(&self, rx: f64, ry: f64) -> Option<(f32, f32)> {
-        let ray = Vector3::new(rx, ry, 1.0);
-        let denom = self.n.dot(&ray);
-        let z = self.d / denom;
-        if !(z.is_finite() && z > NEAR_PLANE_M) {
-            return None;
+    /// The plane along canvas row `y` of pinhole camera `canvas`.
+    fn at_row(&self, canvas: &Camera, y: usize) -> PlaneRow<'_> {
+        let inv_fx = 1.0 / canvas.fx;
+        let ry = (y as f64 - canvas.cy) / canvas.fy;
+        // The ray through pixel x is (x·inv_fx − cx·inv_fx, ry, 1): each dot product with it is
+        // affine in x.
+        let affine = |v: &Vector3<f64>| (v.y * ry + v.z - v.x * canvas.cx * inv_fx, v.x * inv_fx);
+        PlaneRow {
+            plane: self,
+            dn: affine(&self.n),
+            ax: affine(&self.ax),
+            ay: affine(&self.ay),
+            inv_cell: 1.0 / self.plane.cell_m,
         }
-        let p = ray * z;
-        let (x, y) = (self.ax.dot(&p) + self.bx, self.ay.dot(&p) + self.by);
-        let c = self.plane.cell_m;
-        let value = self
-            .plane
-            .albedo((x / c).floor() as i64, (y / c).floor() as i64);
-        Some((z as f32, value))
     }
+}
+
+/// [`PlaneInCamera`] along one canvas row; see [`PlaneInCamera::at_row`].
+struct PlaneRow<'a> {
+    plane: &'a PlaneInCamera,
+    /// (offset, slope) in x of n·ray, ax·ray and ay·ray.
+    dn: (f64, f64),
+    ax: (f64, f64),
+    ay: (f64, f64),
+    inv_cell: f64,
+}
+
+impl PlaneRow<'_> {
+    /// Depth in metres of the plane seen by canvas pixel `x`; `None` if missed.
+    #[inline]
+    fn depth(&self, x: usize) -> Option<f64> {
+        let z = self.plane.d / (self.dn.0 + self.dn.1 * x as f64);
+        (z.is_finite() && z > NEAR_PLANE_M).then_some(z)
+    }
+
+    /// (depth in metres, cell (i, j)) of the plane seen by canvas pixel `x`; `None` if missed.
+    /// The one formula for both the full-frame and the sparse path, so they agree bit for bit.
+    #[inline]
+    fn cell(&self, x: usize) -> Option<(f64, (i64, i64))> {
+        let xf = x as f64;
+        let z = self.depth(x)?;
+        let px = (self.ax.0 + self.ax.1 * xf) * z + self.plane.bx;
+        let py = (self.ay.0 + self.ay.1 * xf) * z + self.plane.by;
+        Some((
+            z,
+            (
+                fast_floor(px * self.inv_cell),
+                fast_floor(py * self.inv_cell),
+            ),
+        ))
+    }
+
+    /// Intensities of pixels `x0 ..= x1` into `out`, given the cells `c0`, `c1` of the two ends.
+    /// Where both ends see one cell, so does every pixel between: the segment maps to a
+    /// segment on the plane, and cells are convex. Otherwise split in halves.
+    fn fill(
+        &self,
+        x0: usize,
+        c0: Option<(f64, (i64, i64))>,
+        x1: usize,
+        c1: Option<(f64, (i64, i64))>,
+        out: &mut [f32],
+    ) {
+        let value = |c: Option<(f64, (i64, i64))>| {
+            c.map_or(0.0, |(_, (i, j))| self.plane.plane.albedo(i, j))
+        };
+        match (c0, c1) {
+            (Some((_, a)), Some((_, b))) if a == b => out.fill(value(c0)),
+            _ if x1 - x0 <= 1 => {
+                out[0] = value(c0);
+                out[x1 - x0] = value(c1);
+            }
+            _ => {
+                let mid = (x0 + x1) / 2;
+                let cm = self.cell(mid);
+                // Both halves include `mid`, and agree on it.
+                self.fill(x0, c0, mid, cm, &mut out[..=mid - x0]);
+                self.fill(mid, cm, x1, c1, &mut out[mid - x0..]);
+            }
+        }
+    }
+
+    /// (depth in metres, intensity) of canvas pixel `x`: infinitely far and black if missed.
+    #[inline]
+    fn hit(&self, x: usize) -> (f32, f32) {
+        self.cell(x).map_or((f32::INFINITY, 0.0), |(z, (i, j))| {
+            (z as f32, self.plane.plane.albedo(i, j))
+        })
+    }
+}
+
+/// ⌊v⌋ for finite |v| < 2⁶³ (far-off rays saturate, which only merges cells beyond the
+/// horizon). `f64::floor` is a libm call without SSE4.1; this is one cast and a compare.
+#[inline]
+fn fast_floor(v: f64) -> i64 {
+    let i = v as i64;
+    i - i64::from(v < i as f64)
 }
 
 /// What one [`SimCamera::advance`] did.
@@ -163,6 +258,8 @@ pub struct SimCamera {
     sim: EventSimulator,
     margin_px: u32,
     /// The current raw frame (linear intensity), kept whole so that ROI steps can be cut from it.
+    /// The raw frame times the flicker gain, what the sensor sees when the lighting flickers.
+    lit: Vec<f32>,
     raw: Vec<f32>,
     /// Scratch: the composited canvas region and the raw ROI values.
     canvas_buf: Vec<f32>,
@@ -172,6 +269,17 @@ pub struct SimCamera {
     bg_cache: Vec<(f32, f32)>,
     prev_pose: Option<Pose>,
     last: Option<FrameInfo>,
+    /// Sparse frames (the default): redraw and step only the raw tiles that can change.
+    sparse: bool,
+    /// Canvas box of each raw tile, the tiles redrawn by the last frame, and the canvas cells
+    /// each mesh (object first, then the occluders) covered at the last frame.
+    tile_boxes: Vec<Option<CanvasBox>>,
+    changed: Vec<bool>,
+    /// Each tile's composited canvas box as of its last redraw (empty: unknown); a redraw that
+    /// reproduces it leaves the tile's raw pixels, and so its sensor pixels, alone.
+    tile_cache: Vec<Vec<f32>>,
+    cover: Coverage,
+    cover_prev: Coverage,
 }
 
 impl SimCamera {
@@ -219,8 +327,17 @@ impl SimCamera {
         })?;
         let sim = EventSimulator::new(camera.width, camera.height, params)?;
         let (canvas, map) = build_canvas(&camera)?;
+        let (cw, ch) = (canvas.width as usize, canvas.height as usize);
+        let tile_boxes = tile_boxes(&map, camera.width as usize, camera.height as usize, cw, ch);
         Ok(Self {
+            changed: vec![false; tile_boxes.len()],
+            tile_cache: vec![Vec::new(); tile_boxes.len()],
+            tile_boxes,
+            cover: Coverage::new(1, cw, ch),
+            cover_prev: Coverage::new(1, cw, ch),
+            sparse: true,
             raw: vec![0.0; camera.n_pixels()],
+            lit: Vec::new(),
             camera,
             canvas,
             map,
@@ -256,7 +373,8 @@ impl SimCamera {
         &self.sim
     }
 
-    /// The current raw frame, linear intensity, row-major `width`×`height`.
+    /// The current raw frame, linear intensity, row-major `width`×`height`, before the
+    /// lighting's flicker gain ([`SimParams::flicker_gain`]).
     pub fn frame(&self) -> &[f32] {
         &self.raw
     }
@@ -279,8 +397,21 @@ impl SimCamera {
     /// robot arms); each [`Self::advance_scene`] then poses every one of them. The next frame
     /// is a full frame.
     pub fn set_occluders(&mut self, meshes: Vec<Arc<Mesh>>) {
+        let (cw, ch) = (self.canvas.width as usize, self.canvas.height as usize);
+        self.cover = Coverage::new(1 + meshes.len(), cw, ch);
+        self.cover_prev = self.cover.clone();
         self.occluders = meshes;
         self.prev_occluder_poses.clear();
+        self.prev_pose = None;
+    }
+
+    /// Sparse frames on (the default) or off. Sparse frames redraw and step only the raw tiles
+    /// whose canvas box holds a background edge or a moving mesh (module docs); off, every frame
+    /// with a moving background is a full frame and the rest use the changed region. Both give
+    /// the same events without leak noise (tested), up to f32 rounding of the leak with it. The
+    /// next frame is a full frame.
+    pub fn set_sparse(&mut self, on: bool) {
+        self.sparse = on;
         self.prev_pose = None;
     }
 
@@ -406,6 +537,7 @@ impl SimCamera {
                 format!("frame time {t_us} µs is not after the previous frame at {t} µs")
             })?;
         }
+        let prev_background = self.background;
         let mut moved_background = false;
         if let Some(bg) = t_c_bg {
             ensure(finite(bg), || {
@@ -424,11 +556,28 @@ impl SimCamera {
                 }
             }
         }
+        if let (true, Some(prev)) = (self.sparse, self.prev_pose) {
+            let info = self.advance_sparse(
+                (&prev, t_c_o),
+                occluder_poses,
+                (prev_background, moved_background),
+                t_us,
+                out,
+            )?;
+            self.prev_pose = Some(*t_c_o);
+            self.prev_occluder_poses.clear();
+            self.prev_occluder_poses.extend_from_slice(occluder_poses);
+            self.last = Some(info);
+            return Ok(info);
+        }
         if moved_background || self.prev_pose.is_none() {
             self.cache_background();
         }
         let region = match self.prev_pose {
-            Some(prev) if !moved_background => self.changed_region(&prev, t_c_o, occluder_poses),
+            // Flicker changes every lit pixel.
+            Some(prev) if !moved_background && !self.flickers() => {
+                self.changed_region(&prev, t_c_o, occluder_poses)
+            }
             _ => Region::Full,
         };
         let info = match region {
@@ -440,7 +589,12 @@ impl SimCamera {
                     full,
                     Roi::full(self.canvas.width, self.canvas.height),
                 )?;
-                self.sim.step(&self.raw, t_us, out)?;
+                if self.flickers() {
+                    self.light(t_us);
+                    self.sim.step(&self.lit, t_us, out)?;
+                } else {
+                    self.sim.step(&self.raw, t_us, out)?;
+                }
                 FrameInfo {
                     roi: full,
                     full_frame: true,
@@ -470,11 +624,229 @@ impl SimCamera {
                 }
             }
         };
+        if self.sparse {
+            // The renderer holds this full frame's triangles: the coverage the next sparse frame
+            // compares against.
+            self.cover.mark(self.renderer.triangle_boxes());
+            self.tile_cache.iter_mut().for_each(Vec::clear);
+        }
         self.prev_pose = Some(*t_c_o);
         self.prev_occluder_poses.clear();
         self.prev_occluder_poses.extend_from_slice(occluder_poses);
         self.last = Some(info);
         Ok(info)
+    }
+
+    /// A sparse frame (module docs): the object from `prev` to `cur`, the occluders from their
+    /// previous poses to `occluder_poses`, the background from `prev_background` (`moved` if its
+    /// pose changed) to the current one.
+    fn advance_sparse(
+        &mut self,
+        (prev, cur): (&Pose, &Pose),
+        occluder_poses: &[Pose],
+        (prev_background, moved_background): (Background, bool),
+        t_us: i64,
+        out: &mut EventBatch,
+    ) -> Result<FrameInfo> {
+        let scene: Vec<(&Mesh, &Pose)> = std::iter::once((self.mesh.as_ref(), cur))
+            .chain(
+                self.occluders
+                    .iter()
+                    .map(|m| m.as_ref())
+                    .zip(occluder_poses),
+            )
+            .collect();
+        self.renderer
+            .prepare_scene(&scene, &self.canvas, None, &self.opts)?;
+        std::mem::swap(&mut self.cover, &mut self.cover_prev);
+        self.cover.mark(self.renderer.triangle_boxes());
+        let mesh_moved: Vec<bool> = std::iter::once(prev != cur)
+            .chain(
+                self.prev_occluder_poses
+                    .iter()
+                    .zip(occluder_poses)
+                    .map(|(a, b)| a != b),
+            )
+            .collect();
+        let moving = self.cover.union_with(&self.cover_prev, |m| mesh_moved[m]);
+        let drawn = self.cover.union_with(&self.cover, |_| true);
+        let plane_now = match self.background {
+            Background::Plane(p) => Some(PlaneInCamera::new(p)),
+            Background::Uniform(_) => None,
+        };
+        let plane_before = match (moved_background, prev_background) {
+            (true, Background::Plane(p)) => Some(PlaneInCamera::new(p)),
+            _ => None,
+        };
+        let canvas = self.canvas;
+        let cell_at = |plane: &PlaneInCamera, (x, y): (usize, usize)| {
+            plane.at_row(&canvas, y).cell(x).map(|(_, c)| c)
+        };
+        // One cell under all four corners of a box means one cell under all of it: the box maps
+        // to a convex quadrilateral on the plane and the cells are convex.
+        let one_cell = |plane: &PlaneInCamera, b: &CanvasBox| {
+            let [a, rest @ ..] = b.corners().map(|c| cell_at(plane, c));
+            a.filter(|a| rest.iter().all(|c| *c == Some(*a)))
+        };
+        let cover = &self.cover;
+        let mut need: Option<CanvasBox> = None;
+        for (flag, b) in self.changed.iter_mut().zip(&self.tile_boxes) {
+            let Some(b) = b else {
+                *flag = false;
+                continue;
+            };
+            let bg_changed = plane_before.as_ref().is_some_and(|before| {
+                let now = plane_now.as_ref().and_then(|p| one_cell(p, b));
+                now.is_none() || one_cell(before, b) != now
+            });
+            *flag = bg_changed || cover.meets(&moving, b);
+            if *flag && cover.meets(&drawn, b) {
+                need = Some(need.map_or(*b, |n| CanvasBox {
+                    x0: n.x0.min(b.x0),
+                    y0: n.y0.min(b.y0),
+                    x1: n.x1.max(b.x1),
+                    y1: n.y1.max(b.y1),
+                }));
+            }
+        }
+        let mesh_roi = need.map(|n| Roi {
+            x0: n.x0 as u32,
+            y0: n.y0 as u32,
+            width: n.width() as u32,
+            height: n.height() as u32,
+        });
+        let rendered = match mesh_roi {
+            Some(roi) => {
+                Some(
+                    self.renderer
+                        .draw_prepared(&scene, &self.canvas, roi, &self.opts)?,
+                )
+            }
+            None => None,
+        };
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let t = TILE_PX as usize;
+        let tx = w.div_ceil(t);
+        let (map, boxes) = (&self.map, &self.tile_boxes);
+        let background = self.background;
+        self.raw
+            .par_chunks_mut(t * w)
+            .zip(self.changed.par_chunks_mut(tx))
+            .zip(self.tile_cache.par_chunks_mut(tx))
+            .enumerate()
+            .for_each(|(ty, ((rows, changed), cache))| {
+                for kx in 0..tx {
+                    let (true, Some(b)) = (changed[kx], boxes[ty * tx + kx]) else {
+                        continue;
+                    };
+                    let uniform = match (&plane_now, background) {
+                        _ if cover.meets(&drawn, &b) => None,
+                        (Some(p), _) => one_cell(p, &b).map(|(i, j)| p.plane.albedo(i, j)),
+                        (None, Background::Uniform(level)) => Some(level),
+                        (None, Background::Plane(_)) => None,
+                    };
+                    let old = std::mem::take(&mut cache[kx]);
+                    let mut buf = Vec::with_capacity(b.width() * b.height());
+                    match uniform {
+                        Some(level) => buf.resize(b.width() * b.height(), level),
+                        None => {
+                            let meshes = rendered.filter(|_| cover.meets(&drawn, &b));
+                            composite(
+                                &mut buf,
+                                &b,
+                                &canvas,
+                                meshes,
+                                plane_now.as_ref(),
+                                background,
+                            )
+                        }
+                    }
+                    let same = old.len() == buf.len()
+                        && old
+                            .iter()
+                            .zip(&buf)
+                            .all(|(x, y)| x.to_bits() == y.to_bits());
+                    cache[kx] = buf;
+                    if same {
+                        // Same canvas values, same raw values: nothing for the sensor either.
+                        changed[kx] = false;
+                        continue;
+                    }
+                    let buf = &cache[kx];
+                    let (x0, n_rows) = (kx * t, rows.len() / w);
+                    let x1 = (x0 + t).min(w);
+                    for r in 0..n_rows {
+                        let y = ty * t + r;
+                        let taps = &map[y * w + x0..y * w + x1];
+                        for (o, &[u, v]) in rows[r * w + x0..r * w + x1].iter_mut().zip(taps) {
+                            *o = match uniform {
+                                // A NaN tap sees nothing, as in `bilinear`.
+                                Some(level) if u.is_finite() => level,
+                                Some(_) => 0.0,
+                                None => bilinear(
+                                    buf,
+                                    b.width(),
+                                    b.height(),
+                                    u - b.x0 as f32,
+                                    v - b.y0 as f32,
+                                ),
+                            };
+                        }
+                    }
+                }
+            });
+        if self.flickers() {
+            // Every lit pixel changes; tiles that see nothing stay dark.
+            for (flag, b) in self.changed.iter_mut().zip(&self.tile_boxes) {
+                *flag = b.is_some();
+            }
+            self.light(t_us);
+            self.sim.step_tiles(&self.lit, &self.changed, t_us, out)?;
+        } else {
+            self.sim.step_tiles(&self.raw, &self.changed, t_us, out)?;
+        }
+        // Report the box of the redrawn tiles (a 1-pixel region when none was).
+        let (mut lo, mut hi) = ((w, h), (0, 0));
+        for (k, _) in self.changed.iter().enumerate().filter(|(_, &c)| c) {
+            let (x, y) = ((k % tx) * t, (k / tx) * t);
+            lo = (lo.0.min(x), lo.1.min(y));
+            hi = (hi.0.max((x + t).min(w)), hi.1.max((y + t).min(h)));
+        }
+        let roi = if hi.0 > lo.0 {
+            Roi {
+                x0: lo.0 as u32,
+                y0: lo.1 as u32,
+                width: (hi.0 - lo.0) as u32,
+                height: (hi.1 - lo.1) as u32,
+            }
+        } else {
+            Roi {
+                x0: 0,
+                y0: 0,
+                width: 1,
+                height: 1,
+            }
+        };
+        Ok(FrameInfo {
+            roi,
+            full_frame: false,
+        })
+    }
+
+    /// Whether the sensor parameters ask for mains flicker of the lighting.
+    fn flickers(&self) -> bool {
+        let p = self.sim.params();
+        p.flicker_hz > 0.0 && p.flicker_depth > 0.0
+    }
+
+    /// `lit` = the raw frame under the lighting at `t_us` (the flicker gain).
+    fn light(&mut self, t_us: i64) {
+        let gain = self.sim.params().flicker_gain(t_us) as f32;
+        self.lit.resize(self.raw.len(), 0.0);
+        self.lit
+            .par_chunks_mut(1 << 14)
+            .zip(self.raw.par_chunks(1 << 14))
+            .for_each(|(l, r)| l.iter_mut().zip(r).for_each(|(l, r)| *l = r * gain));
     }
 
     fn cache_background(&mut self) {
@@ -490,10 +862,9 @@ impl SimCamera {
             .par_chunks_mut(w)
             .enumerate()
             .for_each(|(y, row)| {
-                let ry = (y as f64 - c.cy) / c.fy;
+                let plane = plane.at_row(c, y);
                 for (x, px) in row.iter_mut().enumerate() {
-                    let rx = (x as f64 - c.cx) / c.fx;
-                    *px = plane.hit(rx, ry).unwrap_or((f32::INFINITY, 0.0));
+                    *px = plane.hit(x);
                 }
             });
     }
@@ -673,6 +1044,72 @@ impl SimCamera {
     }
 }
 
+/// Fill `buf` with canvas box `b` composited as in [`SimCamera::render_raw`]: the meshes where
+/// `rendered` has a surface nearer than the background, the background elsewhere.
+fn composite(
+    buf: &mut Vec<f32>,
+    b: &CanvasBox,
+    canvas: &Camera,
+    rendered: Option<&crate::render::Rendered>,
+    plane: Option<&PlaneInCamera>,
+    background: Background,
+) {
+    buf.clear();
+    for y in b.y0..=b.y1 {
+        let row = plane.map(|p| p.at_row(canvas, y));
+        // The mesh buffer's slice of this row, when the meshes reach it.
+        let mesh = rendered.and_then(|r| {
+            let k = r.index(b.x0 as u32, y as u32)?;
+            Some((&r.depth_m[k..k + b.width()], &r.intensity[k..k + b.width()]))
+        });
+        if let Some(row) = &row {
+            // Runs of background are filled by bisection between pixels of one cell; mesh pixels
+            // need only the plane's depth unless the plane is nearer (as the reference does it).
+            let start = buf.len();
+            buf.resize(start + b.width(), 0.0);
+            let out = &mut buf[start..];
+            let depth = mesh.map(|(d, _)| d);
+            let mut c = 0;
+            while c < out.len() {
+                let bg = |k: usize| depth.is_none_or(|d| !d[k].is_finite());
+                let end = (c..out.len())
+                    .find(|&k| bg(k) != bg(c))
+                    .unwrap_or(out.len());
+                if bg(c) {
+                    let (xa, xb) = (b.x0 + c, b.x0 + end - 1);
+                    row.fill(xa, row.cell(xa), xb, row.cell(xb), &mut out[c..end]);
+                } else if let Some((d, i)) = mesh {
+                    for k in c..end {
+                        let x = b.x0 + k;
+                        out[k] = match row.depth(x) {
+                            Some(z) if (z as f32) < d[k] => row.hit(x).1,
+                            _ => i[k],
+                        };
+                    }
+                }
+                c = end;
+            }
+            continue;
+        }
+        for (c, x) in (b.x0..=b.x1).enumerate() {
+            let (d, i) = mesh.map_or((f32::INFINITY, 0.0), |(d, i)| (d[c], i[c]));
+            let value = match (&row, background) {
+                (Some(row), _) => {
+                    let (z, value) = row.hit(x);
+                    if z < d || !d.is_finite() {
+                        value
+                    } else {
+                        i
+                    }
+                }
+                (None, Background::Uniform(level)) if !d.is_finite() => level,
+                (None, _) => i,
+            };
+            buf.push(value);
+        }
+    }
+}
+
 enum Region {
     Full,
     Part { raw: Roi, canvas: Roi },
@@ -827,8 +1264,15 @@ mod tests {
     }
 
     #[test]
-    fn static_scene_is_silent_and_moving_background_forces_a_full_frame() {
+    fn static_scene_is_silent_and_moving_background_redraws_everything() {
+        for sparse in [true, false] {
+            static_scene_then_moving_background(sparse);
+        }
+    }
+
+    fn static_scene_then_moving_background(sparse: bool) {
         let mut sc = sim_camera(2);
+        sc.set_sparse(sparse);
         let mut ev = EventBatch::default();
         let p = pose(0.0, 0.7, 0.0);
         for k in 0..5 {
@@ -837,7 +1281,11 @@ mod tests {
         }
         let bg = Isometry3::translation(0.03, 0.0, 1.5);
         let info = sc.advance(&p, 6000, Some(&bg), &mut ev).unwrap();
-        assert!(info.full_frame && ev.len() > 500, "{} events", ev.len());
+        // A reference frame is full; a sparse one redraws every tile a cell edge crossed.
+        let n = small_camera().n_pixels();
+        assert_eq!(info.full_frame, !sparse);
+        assert!(info.roi.area() > n * 9 / 10, "{:?}", info.roi);
+        assert!(ev.len() > 500, "{} events", ev.len());
         // Off-screen object: nothing changes, time still advances.
         let gone = pose(5.0, 0.7, 0.0);
         sc.advance(&gone, 7000, None, &mut ev).unwrap();
@@ -888,11 +1336,14 @@ mod tests {
         assert!(uniform
             .advance(&pose(0.0, 0.7, 0.0), 5, Some(&bg), &mut ev)
             .is_err());
-        // Behind the camera: full frame, no error.
+        // Behind the camera: no error (the reference path takes a full frame).
         let behind = pose(0.0, -0.5, 0.0);
+        uniform.advance(&behind, 9, None, &mut ev).unwrap();
+        uniform.set_sparse(false);
+        uniform.advance(&behind, 10, None, &mut ev).unwrap();
         assert!(
             uniform
-                .advance(&behind, 9, None, &mut ev)
+                .advance(&pose(0.0, -0.4, 0.0), 11, None, &mut ev)
                 .unwrap()
                 .full_frame
         );
@@ -951,6 +1402,132 @@ mod tests {
             .is_err());
         assert!(roi_cam.advance(&cube, 40_000, None, &mut a).is_err());
         assert!(roi_cam.occluder_displacement_px(&[], &[]).is_err());
+    }
+
+    #[test]
+    fn sparse_frames_equal_the_reference_path() {
+        // A moving background (the camera moving against the world), a moving cube and a slab
+        // sweeping in front: sparse frames give exactly the events of the full-frame reference.
+        let slab = Arc::new(test_cube(0.05, Shading::Constant(0.3)));
+        let mut sparse = sim_camera(2);
+        let mut reference = sim_camera(2);
+        reference.set_sparse(false);
+        for c in [&mut sparse, &mut reference] {
+            c.set_occluders(vec![slab.clone()]);
+        }
+        let (mut a, mut b) = (EventBatch::default(), EventBatch::default());
+        let (mut total, mut skipped) = (0, 0);
+        for k in 0..40 {
+            let kf = k as f64;
+            let cube = pose(-0.05 + 0.002 * kf, 0.7, 0.01 * kf);
+            let occ = [Isometry3::translation(-0.08 + 0.003 * kf, 0.0, 0.5)];
+            // The background moves for 20 frames, then holds still.
+            let bg = Isometry3::translation(0.001 * kf.min(20.0), -0.0005 * kf.min(20.0), 1.5);
+            let info = sparse
+                .advance_scene(&cube, &occ, 1000 * k, Some(&bg), &mut a)
+                .unwrap();
+            reference
+                .advance_scene(&cube, &occ, 1000 * k, Some(&bg), &mut b)
+                .unwrap();
+            assert_eq!(a, b, "frame {k}");
+            assert_eq!(sparse.frame(), reference.frame(), "frame {k}");
+            total += a.len();
+            if k > 0 {
+                assert!(!info.full_frame);
+                skipped += sparse.changed.iter().filter(|c| !**c).count();
+            }
+        }
+        assert!(total > 5000, "the scene fires ({total} events)");
+        // Even with 10-pixel background cells sweeping the view, a third of the tiles are
+        // skipped (the real sensor's cells span ~30 pixels).
+        let tiles = sparse.changed.len() * 39;
+        assert!(skipped * 3 > tiles, "{skipped} of {tiles} tiles skipped");
+    }
+
+    #[test]
+    fn lab_preset_flickers_at_mains_frequency_and_has_hot_pixels() {
+        // A static scene under the `lab` preset: everything lit fires with the 100 Hz flicker,
+        // ON while the light rises and OFF while it falls; hot pixels fire at their own rate.
+        let mesh = Arc::new(test_cube(0.12, Shading::Constant(0.8)));
+        let params = SimParams {
+            seed: 2,
+            ..SimParams::preset("lab").unwrap()
+        };
+        let mut sc = SimCamera::new(
+            small_camera(),
+            mesh,
+            RenderOptions::default(),
+            plane(),
+            params.clone(),
+            2,
+        )
+        .unwrap();
+        let mut all = EventBatch::default();
+        let mut ev = EventBatch::default();
+        let p = pose(0.0, 0.7, 0.0);
+        // 20 ms to settle (a pixel's reference starts mid-swing), then 40 ms counted.
+        for k in 0..=120 {
+            sc.advance(&p, 500 * k, None, &mut ev).unwrap();
+            if k > 40 {
+                all.extend_from(&ev);
+            }
+        }
+        let n = small_camera().n_pixels();
+        // The light dips 0.16 log below its mean; OFF thresholds are N(0.2, 0.03): ~10 % of
+        // the pixels lock on.
+        let w = small_camera().width as usize;
+        let mut fired = vec![false; n];
+        for k in 0..all.len() {
+            fired[all.y[k] as usize * w + all.x[k] as usize] = true;
+        }
+        let frac = fired.iter().filter(|f| **f).count() as f64 / n as f64;
+        assert!((0.04..0.25).contains(&frac), "{frac} of pixels flicker");
+        // d/dt sin(2π·100·t) > 0 on the first and last quarter of each 10 ms period.
+        let rising = |t: i64| {
+            let phase = (t.rem_euclid(10_000)) as f64 / 10_000.0;
+            !(0.25..0.75).contains(&phase)
+        };
+        let agree = (0..all.len())
+            .filter(|&k| rising(all.t_us[k]) == (all.p[k] == 1))
+            .count();
+        assert!(
+            agree * 100 > all.len() * 95,
+            "{agree} of {} events follow the light",
+            all.len()
+        );
+        let hot = sc.simulator().hot_pixels();
+        assert!(
+            !hot.is_empty() && hot.len() < n / 1000 + 10,
+            "{} hot pixels",
+            hot.len()
+        );
+        // Without flicker the same static scene is silent but for noise and hot pixels.
+        let quiet = SimParams {
+            flicker_depth: 0.0,
+            ..params
+        };
+        let mesh = Arc::new(test_cube(0.12, Shading::Constant(0.8)));
+        let mut sc = SimCamera::new(
+            small_camera(),
+            mesh,
+            RenderOptions::default(),
+            plane(),
+            quiet,
+            2,
+        )
+        .unwrap();
+        let mut count = 0;
+        for k in 0..=120 {
+            sc.advance(&p, 500 * k, None, &mut ev).unwrap();
+            count += ev.len();
+        }
+        // Each hot pixel: 500 Hz for 60 ms ≈ 30 events; shot noise and leak add ≈ 40.
+        let expected = hot.len() * 30;
+        assert!(
+            count > expected / 2 && count < 2 * expected + 60,
+            "{count} events, {} hot pixels",
+            hot.len()
+        );
     }
 
     #[test]

@@ -59,8 +59,10 @@
 pub mod camera;
 mod params;
 mod pixel;
+mod tiles;
 
 pub use params::{SimParams, PRESETS};
+pub use pixel::SEGMENT_PX;
 
 use crate::error::{ensure, Error, Result};
 use crate::event::EventBatch;
@@ -68,6 +70,9 @@ use crate::image::Roi;
 use crate::rng::Rng;
 use pixel::{Interval, RawEvent, Row};
 use rayon::prelude::*;
+
+/// Tile height of [`EventSimulator::step_tiles`]; tiles are as wide as a row segment.
+pub const TILE_PX: u32 = SEGMENT_PX as u32;
 
 /// Smallest per-pixel threshold after mismatch (log units), as in v2e, ESIM and Prophesee.
 pub const MIN_THRESHOLD: f64 = 0.01;
@@ -80,6 +85,7 @@ const MAX_NOISE_EVENTS_PER_PIXEL_STEP: f64 = 1000.0;
 /// the shot noise of some step.
 const STREAM_FIXED_PATTERN: u64 = 0x5EED_F1E1D;
 const STREAM_SHOT: u64 = 0x5EED_5407;
+const STREAM_HOT: u64 = 0x5EED_4077;
 
 /// Generator for one (seed, purpose, a, b) tuple; splitmix64's finaliser decorrelates nearby keys.
 fn stream(seed: u64, purpose: u64, a: u64, b: u64) -> Rng {
@@ -159,6 +165,12 @@ impl EventSimulator {
                     row.c_neg[x] = cn as f32;
                     row.leak_per_us[x] = (leak_hz * 1e-6 * f64::from(row.c_pos[x])) as f32;
                 }
+                if params.hot_pixel_fraction > 0.0 {
+                    let mut rng = stream(params.seed, STREAM_HOT, u64::from(y), 0);
+                    row.hot = (0..width)
+                        .filter(|_| rng.uniform() < params.hot_pixel_fraction)
+                        .collect();
+                }
                 row
             })
             .collect();
@@ -207,6 +219,16 @@ impl EventSimulator {
         (on, off)
     }
 
+    /// Row-major indices of the hot pixels.
+    pub fn hot_pixels(&self) -> Vec<u32> {
+        let w = self.width;
+        self.rows
+            .iter()
+            .enumerate()
+            .flat_map(|(y, r)| r.hot.iter().map(move |&x| y as u32 * w + x))
+            .collect()
+    }
+
     /// Per-pixel static leak-event rate in Hz, row-major.
     pub fn leak_rates_hz(&self) -> Vec<f64> {
         self.rows
@@ -230,7 +252,7 @@ impl EventSimulator {
         self.rows
             .par_iter_mut()
             .zip(frame.par_chunks(w))
-            .for_each(|(row, f)| row.reset(f, eps));
+            .for_each(|(row, f)| row.reset(f, eps, t_us));
         self.t_prev_us = Some(t_us);
         self.step_index = 0;
         Ok(())
@@ -279,6 +301,72 @@ impl EventSimulator {
         self.advance(frame_roi, roi, t_us, out)
     }
 
+    /// Number of [`TILE_PX`]-square tiles across and down (the last ones may be partial).
+    pub fn tiles(&self) -> (usize, usize) {
+        (
+            (self.width as usize).div_ceil(SEGMENT_PX),
+            (self.height as usize).div_ceil(TILE_PX as usize),
+        )
+    }
+
+    /// Advance the whole sensor to `frame` (all `width`×`height` pixels) at `t_us`, like
+    /// [`Self::step`], but touching only the pixels that can fire: those of the tiles flagged in
+    /// `changed` (row-major over [`Self::tiles`]), plus any row segment with a shot-noise arrival
+    /// or a leak event due. The caller guarantees that every pixel of an unflagged tile has the
+    /// intensity it had when last stepped (a rendered frame knows which tiles it redrew); then
+    /// the events equal a full [`Self::step`]'s — bit for bit without leak, and up to f32
+    /// rounding of the accumulated leak with it. Only changed tiles are validated.
+    /// Mixing with [`Self::step_roi`]: the row segments a ROI step touches count as up to date.
+    pub fn step_tiles(
+        &mut self,
+        frame: &[f32],
+        changed: &[bool],
+        t_us: i64,
+        out: &mut EventBatch,
+    ) -> Result<()> {
+        ensure(self.t_prev_us.is_some(), || {
+            "step_tiles before the sensor was initialised by reset or step".into()
+        })?;
+        let w = self.width as usize;
+        ensure(frame.len() == w * self.height as usize, || {
+            format!(
+                "frame has {} values, expected {}x{}",
+                frame.len(),
+                self.width,
+                self.height
+            )
+        })?;
+        let (tx, ty) = self.tiles();
+        ensure(changed.len() == tx * ty, || {
+            format!("{} tile flags for {tx}x{ty} tiles", changed.len())
+        })?;
+        let valid = frame.par_chunks(w).enumerate().all(|(y, row)| {
+            let flags = &changed[y / TILE_PX as usize * tx..][..tx];
+            row.chunks(SEGMENT_PX)
+                .zip(flags)
+                .filter(|(_, &f)| f)
+                .all(|(c, _)| c.iter().all(|v| (0.0..f32::INFINITY).contains(v)))
+        });
+        ensure(valid, || {
+            "frame intensities must be finite and >= 0 (linear intensity)".into()
+        })?;
+        let iv = self.interval(t_us)?;
+        let (seed, k) = (self.params.seed, self.step_index);
+        self.rows
+            .par_iter_mut()
+            .zip(frame.par_chunks(w))
+            .enumerate()
+            .for_each(|(y, (row, f))| {
+                let flags = &changed[y / TILE_PX as usize * tx..][..tx];
+                let mut rng = stream(seed, STREAM_SHOT, k, y as u64);
+                row.step_segments(f, flags, (y * w) as u32, &iv, &mut rng);
+            });
+        self.t_prev_us = Some(t_us);
+        self.step_index += 1;
+        self.collect(0, self.height as usize, iv.t0_us, out);
+        Ok(())
+    }
+
     fn check_frame(&self, frame: &[f32], w: u32, h: u32) -> Result<()> {
         let n = w as usize * h as usize;
         ensure(frame.len() == n, || {
@@ -304,7 +392,9 @@ impl EventSimulator {
         let p = &self.params;
         let bright = p.shot_noise_bright_factor.max(1.0);
         let noise_per_step =
-            (self.max_leak_hz + p.shot_noise_rate_hz * bright) * dt_us as f64 * 1e-6;
+            (self.max_leak_hz + p.shot_noise_rate_hz * bright + p.hot_pixel_rate_hz)
+                * dt_us as f64
+                * 1e-6;
         ensure(noise_per_step <= MAX_NOISE_EVENTS_PER_PIXEL_STEP, || {
             format!("a {dt_us} µs interval expects {noise_per_step:.0} noise events per pixel; step more often")
         })?;
@@ -315,6 +405,7 @@ impl EventSimulator {
             log_eps: p.log_eps as f32,
             shot_per_us: p.shot_noise_rate_hz * 1e-6,
             shot_bright_factor: p.shot_noise_bright_factor,
+            hot_per_us: p.hot_pixel_rate_hz * 1e-6,
         })
     }
 
@@ -339,9 +430,15 @@ impl EventSimulator {
             });
         self.t_prev_us = Some(t_us);
         self.step_index += 1;
+        self.collect(y0, y0 + rh, iv.t0_us, out);
+        Ok(())
+    }
 
+    /// Merge the events of rows `y0 .. y1` of the step that began at `t0_us` into `out`, sorted.
+    fn collect(&mut self, y0: usize, y1: usize, t0_us: i64, out: &mut EventBatch) {
+        let w = self.width;
         self.merged.clear();
-        for row in &self.rows[y0..y0 + rh] {
+        for row in &self.rows[y0..y1] {
             self.merged.extend_from_slice(&row.events);
         }
         // One u128 per event, (time offset, pixel, position in `merged`): unique keys make an
@@ -351,7 +448,7 @@ impl EventSimulator {
         let keys = &mut self.sort_keys;
         keys.clear();
         keys.extend(self.merged.iter().enumerate().map(|(pos, e)| {
-            let off = (e.t_us - iv.t0_us) as u64;
+            let off = (e.t_us - t0_us) as u64;
             (u128::from(off) << 64) | (u128::from(e.idx) << 32) | pos as u128
         }));
         keys.par_sort_unstable();
@@ -371,7 +468,6 @@ impl EventSimulator {
                 e.t_us,
             );
         }
-        Ok(())
     }
 }
 

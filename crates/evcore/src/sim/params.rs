@@ -5,6 +5,10 @@
 //!
 //! | field                      | clean | imx636 | noisy | anchor                                                  |
 //! |----------------------------|-------|--------|-------|---------------------------------------------------------|
+//! | `hot_pixel_fraction`       | 0     | 0      | 0     | `lab`: 1e-4 (≈ 90 pixels of 1280×720), an engineering choice |
+//! | `hot_pixel_rate_hz`        | 0     | 0      | 0     | `lab`: 500 Hz each, a stuck comparator firing both ways |
+//! | `flicker_hz`               | 0     | 0      | 0     | `lab`: 100 Hz, mains (50 Hz) lamps flicker at twice the line frequency |
+//! | `flicker_depth`            | 0     | 0      | 0     | `lab`: 0.15, lit intensity × (1 + d·sin 2πft): the light dips ln(1/0.85) = 0.16 below its mean, so the ~10 % of pixels whose OFF threshold is below that lock on and fire ON and OFF every period (≈ 20 Mev/s at 1280×720); the rest stay silent until noise moves their reference |
 //! | `c_pos`, `c_neg` (log)     | 0.2   | 0.2    | 0.2   | v2e CLI θ± 0.2; Prophesee presets θ 0.2                 |
 //! | `sigma_c` (log)            | 0.02  | 0.03   | 0.05  | v2e `clean` 0.02 (ESIM default 0.021); v2e CLI 0.03; v2e/Prophesee `noisy` 0.05 |
 //! | `refractory_us`            | 0     | 100    | 100   | ESIM default 0; ~100 µs for IMX636 is an engineering choice (v2e CLI uses 500 µs) |
@@ -13,6 +17,12 @@
 //! | `log_eps`                  | 1e-3  | 1e-3   | 1e-3  | ESIM `log_eps` 0.001 (Prophesee uses 1e-5 on a [0,1] scale) |
 //! | `leak_rate_spread_decades` | 0     | 0.1    | 0.1   | v2e per-pixel leak factor 10^(0.1·N(0,1))               |
 //! | `shot_noise_bright_factor` | 1     | 0.25   | 0.25  | v2e: shot rate falls to ×0.25 at full brightness        |
+//!
+//! `lab` is `imx636` (its noise and refractory period) plus the hot pixels and mains flicker
+//! above: the realism preset of the rendered reference suite. The flicker is applied by
+//! [`super::camera::SimCamera`] to every lit surface (object, arms, background), as a factor on
+//! the frame at each render time; the bare [`super::EventSimulator`] takes frames as given.
+//! A front-end anti-flicker filter should find the fundamental at `flicker_hz`.
 
 use crate::error::{ensure, Result};
 
@@ -39,12 +49,20 @@ pub struct SimParams {
     pub shot_noise_bright_factor: f64,
     /// ε in L = ln(ε + I); bounds the log of black pixels.
     pub log_eps: f64,
+    /// Fraction of pixels that are hot (drawn once from the seed), each firing extra shot
+    /// noise at `hot_pixel_rate_hz` (Hz, ON and OFF together).
+    pub hot_pixel_fraction: f64,
+    pub hot_pixel_rate_hz: f64,
+    /// Mains flicker of the lighting: lit intensity × (1 + `flicker_depth`·sin(2π·`flicker_hz`·t)),
+    /// t in seconds of sensor time. 0 Hz or depth 0 is off. Applied by the rendered camera.
+    pub flicker_hz: f64,
+    pub flicker_depth: f64,
     /// Seed of every random draw (threshold mismatch, leak factors, shot noise).
     pub seed: u64,
 }
 
 /// Names accepted by [`SimParams::preset`].
-pub const PRESETS: [&str; 3] = ["clean", "imx636", "noisy"];
+pub const PRESETS: [&str; 4] = ["clean", "imx636", "noisy", "lab"];
 
 impl Default for SimParams {
     fn default() -> Self {
@@ -58,6 +76,10 @@ impl Default for SimParams {
             shot_noise_rate_hz: 0.1,
             shot_noise_bright_factor: 0.25,
             log_eps: 1e-3,
+            hot_pixel_fraction: 0.0,
+            hot_pixel_rate_hz: 0.0,
+            flicker_hz: 0.0,
+            flicker_depth: 0.0,
             seed: 0,
         }
     }
@@ -83,6 +105,13 @@ impl SimParams {
                 shot_noise_rate_hz: 5.0,
                 ..base
             }),
+            "lab" => Ok(Self {
+                hot_pixel_fraction: 1e-4,
+                hot_pixel_rate_hz: 500.0,
+                flicker_hz: 100.0,
+                flicker_depth: 0.15,
+                ..base
+            }),
             _ => Err(crate::Error::InvalidArgument(format!(
                 "unknown simulator preset {name:?}; expected one of {PRESETS:?}"
             ))),
@@ -100,6 +129,10 @@ impl SimParams {
             self.shot_noise_rate_hz,
             self.shot_noise_bright_factor,
             self.log_eps,
+            self.hot_pixel_fraction,
+            self.hot_pixel_rate_hz,
+            self.flicker_hz,
+            self.flicker_depth,
         ];
         ensure(finite.iter().all(|v| v.is_finite()), || {
             format!("simulator parameters must be finite: {self:?}")
@@ -138,9 +171,36 @@ impl SimParams {
                 self.shot_noise_bright_factor
             )
         })?;
+        ensure(
+            (0.0..=1.0).contains(&self.hot_pixel_fraction) && self.hot_pixel_rate_hz >= 0.0,
+            || {
+                format!(
+                    "hot pixels need a fraction in [0, 1] and a rate >= 0, got {} and {} Hz",
+                    self.hot_pixel_fraction, self.hot_pixel_rate_hz
+                )
+            },
+        )?;
+        ensure(
+            self.flicker_hz >= 0.0 && (0.0..1.0).contains(&self.flicker_depth),
+            || {
+                format!(
+                    "flicker needs a frequency >= 0 Hz and a depth in [0, 1), got {} Hz and {}",
+                    self.flicker_hz, self.flicker_depth
+                )
+            },
+        )?;
         ensure(self.log_eps > 0.0, || {
             format!("log_eps must be > 0, got {}", self.log_eps)
         })
+    }
+
+    /// The lighting factor at `t_us` (1 without flicker).
+    pub fn flicker_gain(&self, t_us: i64) -> f64 {
+        if self.flicker_hz == 0.0 || self.flicker_depth == 0.0 {
+            return 1.0;
+        }
+        let phase = 2.0 * std::f64::consts::PI * self.flicker_hz * (t_us as f64 * 1e-6);
+        1.0 + self.flicker_depth * phase.sin()
     }
 }
 
@@ -164,6 +224,14 @@ mod tests {
         );
         assert_eq!(SimParams::preset("noisy").unwrap().shot_noise_rate_hz, 5.0);
         assert_eq!(SimParams::preset("imx636").unwrap(), SimParams::default());
+        let lab = SimParams::preset("lab").unwrap();
+        assert_eq!((lab.flicker_hz, lab.flicker_depth), (100.0, 0.15));
+        assert_eq!(lab.refractory_us, SimParams::default().refractory_us);
+        // 100 Hz: the gain repeats every 10 ms and swings by the depth.
+        assert!((lab.flicker_gain(2_500) - 1.15).abs() < 1e-12);
+        assert!((lab.flicker_gain(12_500) - 1.15).abs() < 1e-9);
+        assert!((lab.flicker_gain(7_500) - 0.85).abs() < 1e-9);
+        assert_eq!(SimParams::default().flicker_gain(2_500), 1.0);
         assert!(SimParams::preset("imx999").is_err());
     }
 
@@ -205,6 +273,18 @@ mod tests {
             },
             SimParams {
                 shot_noise_bright_factor: -0.5,
+                ..ok.clone()
+            },
+            SimParams {
+                hot_pixel_fraction: 1.5,
+                ..ok.clone()
+            },
+            SimParams {
+                flicker_depth: 1.0,
+                ..ok.clone()
+            },
+            SimParams {
+                flicker_hz: -100.0,
                 ..ok.clone()
             },
         ];

@@ -7,6 +7,17 @@ use crate::rng::Rng;
 /// `last_t_us` of a pixel that has never fired.
 pub(super) const NEVER: i64 = i64::MIN;
 
+/// Pixels per row segment: the unit in which [`Row::step_segments`] skips unchanged pixels.
+pub const SEGMENT_PX: usize = 16;
+
+/// `seg_due_us` of a segment that leak alone can never make fire.
+const NEVER_DUE: i64 = i64::MAX;
+
+/// Log-intensity slack subtracted before predicting a leak crossing: the state is f32, so the
+/// crossing time is uncertain by a few ulps of the level; waking a segment early costs a quiet
+/// pass, waking it late would misplace an event.
+const DUE_SLACK_LOG: f64 = 1e-5;
+
 /// One emitted event before the frame-wide sort; `idx` is the row-major pixel index.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct RawEvent {
@@ -34,6 +45,8 @@ pub(super) struct Interval {
     pub shot_per_us: f64,
     /// Shot-rate multiplier at intensity 1.
     pub shot_bright_factor: f64,
+    /// Extra noise rate of a hot pixel, per microsecond.
+    pub hot_per_us: f64,
 }
 
 /// State and fixed-pattern constants of one sensor row, struct of arrays so the static-pixel
@@ -48,6 +61,12 @@ pub(super) struct Row {
     pub c_neg: Vec<f32>,
     /// Leak drift of the reference, log units per microsecond.
     pub leak_per_us: Vec<f32>,
+    /// Per [`SEGMENT_PX`] segment: the time its pixels were last brought up to date (µs), and
+    /// the earliest time leak alone can make one of them fire (µs, [`NEVER_DUE`] if never).
+    pub seg_t_us: Vec<i64>,
+    pub seg_due_us: Vec<i64>,
+    /// Columns of the row's hot pixels, ascending.
+    pub hot: Vec<u32>,
     /// Scratch reused between steps to avoid per-step allocation.
     pub events: Vec<RawEvent>,
     shots: Vec<Shot>,
@@ -70,6 +89,9 @@ impl Row {
             c_pos: vec![0.0; width],
             c_neg: vec![0.0; width],
             leak_per_us: vec![0.0; width],
+            seg_t_us: vec![0; width.div_ceil(SEGMENT_PX)],
+            seg_due_us: vec![NEVER_DUE; width.div_ceil(SEGMENT_PX)],
+            hot: Vec::new(),
             events: Vec::new(),
             shots: Vec::new(),
             busy: Vec::new(),
@@ -78,7 +100,7 @@ impl Row {
 
     /// Set every pixel to the intensities `frame` (the whole row) with its reference at the
     /// current level and no event history.
-    pub fn reset(&mut self, frame: &[f32], log_eps: f32) {
+    pub fn reset(&mut self, frame: &[f32], log_eps: f32, t_us: i64) {
         for (x, &i) in frame.iter().enumerate() {
             let l = log_intensity(i, log_eps);
             self.prev_i[x] = i;
@@ -86,7 +108,18 @@ impl Row {
             self.ref_l[x] = l;
             self.last_t_us[x] = NEVER;
         }
+        self.mark_segments(0, frame.len(), t_us);
         self.events.clear();
+    }
+
+    /// Record that columns `x0 .. x1` are up to date at `t_us`. Their leak due time is set to
+    /// `t_us`, so the next [`Self::step_segments`] visits them and predicts it afresh.
+    fn mark_segments(&mut self, x0: usize, x1: usize, t_us: i64) {
+        if x1 > x0 {
+            let segs = x0 / SEGMENT_PX..(x1 - 1) / SEGMENT_PX + 1;
+            self.seg_t_us[segs.clone()].fill(t_us);
+            self.seg_due_us[segs].fill(t_us);
+        }
     }
 
     /// Draw shot-noise arrivals for columns `x0 .. x0 + frame.len()` over the interval into
@@ -98,6 +131,12 @@ impl Row {
     /// the number of arrivals, not of pixels.
     fn sample_shots(&mut self, frame: &[f32], iv: &Interval, rng: &mut Rng) {
         self.shots.clear();
+        self.sample_dark_shots(frame, iv, rng);
+        self.sample_hot_shots(frame.len(), iv, rng);
+    }
+
+    /// Every pixel's shot noise (see [`Self::sample_shots`]).
+    fn sample_dark_shots(&mut self, frame: &[f32], iv: &Interval, rng: &mut Rng) {
         if iv.shot_per_us <= 0.0 {
             return;
         }
@@ -125,6 +164,31 @@ impl Row {
                     on,
                 });
             }
+        }
+    }
+
+    /// The hot pixels' extra arrivals among columns `0 .. n` (a Poisson process per pixel),
+    /// merged into `self.shots` keeping the column-then-time order.
+    fn sample_hot_shots(&mut self, n: usize, iv: &Interval, rng: &mut Rng) {
+        if iv.hot_per_us <= 0.0 || self.hot.is_empty() {
+            return;
+        }
+        let rate = iv.hot_per_us * iv.dt_us as f64; // arrivals per interval
+        let before = self.shots.len();
+        for &col in self.hot.iter().filter(|&&c| (c as usize) < n) {
+            let mut s = 0.0;
+            loop {
+                s += -(1.0 - rng.uniform()).ln() / rate;
+                if s >= 1.0 {
+                    break;
+                }
+                let on = rng.uniform() < 0.5;
+                self.shots.push(Shot { col, s, on });
+            }
+        }
+        if self.shots.len() > before {
+            self.shots
+                .sort_by(|a, b| a.col.cmp(&b.col).then(a.s.total_cmp(&b.s)));
         }
     }
 
@@ -159,6 +223,118 @@ impl Row {
         }
         self.shots = shots;
         self.busy = busy;
+        self.mark_segments(x0, x0 + frame.len(), iv.t0_us + iv.dt_us);
+    }
+
+    /// Advance the whole row (`frame` covers it) over `iv`, visiting only the segments that can
+    /// have events: those flagged in `changed` (one flag per segment; the caller guarantees that
+    /// every pixel of an unflagged segment has the same intensity as at its last update), those
+    /// with a shot-noise arrival, and those whose leak is due by the interval's end. A visited
+    /// segment first catches up with its pixels' constant intensity since its last update, then
+    /// takes the interval like [`Self::step`]; the result equals stepping every pixel every
+    /// interval, up to f32 rounding of the accumulated leak.
+    pub fn step_segments(
+        &mut self,
+        frame: &[f32],
+        changed: &[bool],
+        idx0: u32,
+        iv: &Interval,
+        rng: &mut Rng,
+    ) {
+        self.events.clear();
+        self.sample_shots(frame, iv, rng);
+        let shots = std::mem::take(&mut self.shots);
+        let t1 = iv.t0_us + iv.dt_us;
+        let mut k = 0;
+        for (seg, &flag) in changed.iter().enumerate() {
+            let (xs, xe) = (seg * SEGMENT_PX, ((seg + 1) * SEGMENT_PX).min(frame.len()));
+            let first = k;
+            while k < shots.len() && (shots[k].col as usize) < xe {
+                k += 1;
+            }
+            if !(flag || k > first || self.seg_due_us[seg] <= t1) {
+                continue;
+            }
+            let t_from = self.seg_t_us[seg];
+            let mut due = NEVER_DUE;
+            let mut j = first;
+            for x in xs..xe {
+                let idx = idx0 + x as u32;
+                let end = shots[j..k]
+                    .iter()
+                    .position(|s| s.col as usize != x)
+                    .map_or(k, |n| j + n);
+                if end > j || !self.quiet_pixel(x, frame[x], t_from, iv) {
+                    if t_from < iv.t0_us {
+                        self.catch_up(x, idx, t_from, iv);
+                    }
+                    self.step_pixel(x, idx, frame[x], &shots[j..end], iv);
+                }
+                j = end;
+                due = due.min(self.leak_due_us(x, t1));
+            }
+            self.seg_t_us[seg] = t1;
+            self.seg_due_us[seg] = due;
+        }
+        self.shots = shots;
+    }
+
+    /// Bring pixel `x`, last updated at `t_from` < `iv.t0_us`, to `iv.t0_us`: its intensity was
+    /// constant since, so only the leak moved it.
+    fn catch_up(&mut self, x: usize, idx: u32, t_from: i64, iv: &Interval) {
+        let gap = Interval {
+            t0_us: t_from,
+            dt_us: iv.t0_us - t_from,
+            ..*iv
+        };
+        let n_ev = self.events.len();
+        self.step_pixel(x, idx, self.prev_i[x], &[], &gap);
+        // A leak crossing is due no earlier than t0 (the segment would have been visited in an
+        // earlier interval); rounding of the f32 state may still put one a microsecond early, and
+        // the output must stay sorted across steps.
+        for e in &mut self.events[n_ev..] {
+            e.t_us = e.t_us.max(iv.t0_us);
+        }
+    }
+
+    /// The quiet-pixel test of [`Self::quiet_span`] for a pixel last updated at `t_from`: its path
+    /// is flat (plus leak) until `iv.t0_us`, then a straight line to `i1`, so it stays inside the
+    /// band iff both corners do. Updates the pixel and returns true if it fires nothing.
+    #[inline]
+    fn quiet_pixel(&mut self, x: usize, i1: f32, t_from: i64, iv: &Interval) -> bool {
+        let pl = self.prev_l[x];
+        let l1 = if i1.to_bits() == self.prev_i[x].to_bits() {
+            pl
+        } else {
+            log_intensity(i1, iv.log_eps)
+        };
+        let leak = f64::from(self.leak_per_us[x]);
+        let r = f64::from(self.ref_l[x]);
+        let (cp, cn) = (f64::from(self.c_pos[x]), f64::from(self.c_neg[x]));
+        let drift = leak * (iv.t0_us + iv.dt_us - t_from) as f64;
+        let d_mid = f64::from(pl) + leak * (iv.t0_us - t_from) as f64 - r;
+        let d_end = f64::from(l1) + drift - r;
+        // Up to date at t0, the start is inside the band by construction (as in `quiet_span`).
+        let quiet =
+            d_end < cp && -d_end < cn && (t_from == iv.t0_us || (d_mid < cp && -d_mid < cn));
+        if quiet {
+            self.prev_i[x] = i1;
+            self.prev_l[x] = l1;
+            self.ref_l[x] = (r - drift) as f32;
+        }
+        quiet
+    }
+
+    /// Earliest time (µs) at which leak alone can make pixel `x`, up to date at `t_us`, fire.
+    fn leak_due_us(&self, x: usize, t_us: i64) -> i64 {
+        let leak = f64::from(self.leak_per_us[x]);
+        if leak <= 0.0 {
+            return NEVER_DUE;
+        }
+        let gap = f64::from(self.c_pos[x]) - (f64::from(self.prev_l[x]) - f64::from(self.ref_l[x]));
+        let wait = ((gap - DUE_SLACK_LOG) / leak).floor();
+        // Saturating float-to-int cast: a far-off crossing becomes "never" in practice.
+        t_us.saturating_add(wait.max(0.0) as i64)
     }
 
     /// Update the pixels of columns `x .. x + frame.len()` whose level stays strictly inside

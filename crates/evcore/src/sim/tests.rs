@@ -577,3 +577,102 @@ fn shot_noise_resets_the_reference() {
         "{quiet} quiet, {reset} reset pixels"
     );
 }
+
+/// Tile flags (row-major over `sim.tiles()`) of the tiles where frames `a` and `b` differ.
+fn differing_tiles(sim: &EventSimulator, a: &[f32], b: &[f32]) -> Vec<bool> {
+    let (tx, ty) = sim.tiles();
+    let (w, t) = (sim.width() as usize, TILE_PX as usize);
+    let mut flags = vec![false; tx * ty];
+    for (k, (x, y)) in a.iter().zip(b).enumerate() {
+        if x.to_bits() != y.to_bits() {
+            flags[(k / w) / t * tx + (k % w) / t] = true;
+        }
+    }
+    flags
+}
+
+#[test]
+fn tile_steps_equal_full_steps_with_noise_and_leak() {
+    // The imx636 preset with strong noise: shot noise, leak, refractory period. The edge moves
+    // through a few tiles only; the rest are skipped but still leak and take shot noise.
+    let (w, h) = (70, 40);
+    let p = SimParams {
+        shot_noise_rate_hz: 200.0,
+        leak_rate_hz: 50.0,
+        seed: 4,
+        ..SimParams::default()
+    };
+    let (mut full, mut tiled) = (
+        EventSimulator::new(w, h, p.clone()).unwrap(),
+        EventSimulator::new(w, h, p).unwrap(),
+    );
+    let mut prev = edge_frame(w, h, 20.0);
+    full.reset(&prev, 0).unwrap();
+    tiled.reset(&prev, 0).unwrap();
+    let (mut a, mut b) = (EventBatch::default(), EventBatch::default());
+    let (mut all_a, mut all_b) = (EventBatch::default(), EventBatch::default());
+    let mut skipped = 0;
+    for k in 1..=200 {
+        // The edge moves for 20 steps, then the scene is static (leak and noise only).
+        let f = edge_frame(w, h, 20.0 + 0.4 * (k.min(20)) as f64);
+        let flags = differing_tiles(&tiled, &prev, &f);
+        skipped += flags.iter().filter(|f| !**f).count();
+        full.step(&f, k * 1000, &mut a).unwrap();
+        tiled.step_tiles(&f, &flags, k * 1000, &mut b).unwrap();
+        assert_sorted(&b, w);
+        assert!((0..b.len()).all(|i| b.t_us[i] >= (k - 1) * 1000 && b.t_us[i] <= k * 1000));
+        all_a.extend_from(&a);
+        all_b.extend_from(&b);
+        prev = f;
+    }
+    assert!(skipped > 200 * 15 / 2, "most tiles are skipped ({skipped})");
+    // Leak makes ~50 Hz·0.2 s·2800 px ≈ 28 000 events and shot noise ≈ 110 000; the edge a few
+    // thousand. Each pixel fires the same events, at most a microsecond apart (f32 rounding of
+    // the leak accumulated over a skipped stretch instead of per step).
+    assert!(all_a.len() > 30_000, "{}", all_a.len());
+    let mut mismatched = 0;
+    for idx in 0..(w * h) as usize {
+        let (ea, eb) = (of_pixel(&all_a, w, idx), of_pixel(&all_b, w, idx));
+        let same = ea.len() == eb.len()
+            && ea
+                .iter()
+                .zip(&eb)
+                .all(|(x, y)| x.1 == y.1 && (x.0 - y.0).abs() <= 1);
+        mismatched += usize::from(!same);
+    }
+    assert!(
+        mismatched * 100 <= (w * h) as usize,
+        "{mismatched} pixels differ"
+    );
+
+    // All tiles flagged every step: bit-identical to full steps.
+    let p = SimParams {
+        shot_noise_rate_hz: 200.0,
+        leak_rate_hz: 50.0,
+        seed: 5,
+        ..SimParams::default()
+    };
+    let (mut full, mut tiled) = (
+        EventSimulator::new(w, h, p.clone()).unwrap(),
+        EventSimulator::new(w, h, p).unwrap(),
+    );
+    let mut f = edge_frame(w, h, 30.0);
+    full.reset(&f, 0).unwrap();
+    tiled.reset(&f, 0).unwrap();
+    let all = vec![true; flags_len(&tiled)];
+    for k in 1..=10 {
+        f = edge_frame(w, h, 30.0 + 0.7 * k as f64);
+        full.step(&f, k * 1000, &mut a).unwrap();
+        tiled.step_tiles(&f, &all, k * 1000, &mut b).unwrap();
+        assert_eq!(a, b, "step {k}");
+    }
+    assert!(tiled.step_tiles(&f, &all[1..], 300_000, &mut b).is_err());
+    let mut bad = f.clone();
+    bad[0] = f32::NAN;
+    assert!(tiled.step_tiles(&bad, &all, 300_000, &mut b).is_err());
+}
+
+fn flags_len(sim: &EventSimulator) -> usize {
+    let (tx, ty) = sim.tiles();
+    tx * ty
+}

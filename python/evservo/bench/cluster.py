@@ -1,0 +1,70 @@
+"""Run benchmark tasks on a running dask.distributed cluster (``evservo bench --scheduler tcp://HOST:PORT``).
+
+Each task is one call ``fn(*args)`` submitted to the scheduler; results come back to the submitting
+process, which writes them (so ``--out`` is on the submitting machine). Workers need the same evservo
+installed (``pip install`` of the same checkout, or the same venv on a shared file system).
+
+Failure policy: a task whose worker dies is rescheduled once (the scheduler's ``allowed_failures`` is
+set to 1 for the session), and a task that raises is retried once; after that the task is reported
+failed with the reason, and the other tasks go on. Ctrl-C cancels every pending task on the cluster
+and re-raises :class:`KeyboardInterrupt`.
+
+Run a cluster by hand::
+
+    dask scheduler --host 0.0.0.0 --port 8786          # on one machine
+    dask worker tcp://SCHEDULER:8786 --nworkers 1 --nthreads 1   # on each machine, in evservo's venv
+    evservo bench --suite paper --scheduler tcp://SCHEDULER:8786 --out out/bench-paper
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+#: One retry of a task whose worker died (then the scheduler gives up with KilledWorker).
+ALLOWED_WORKER_DEATHS = 1
+#: One retry of a task that raised.
+RETRIES = 1
+
+
+def _set_allowed_failures(n: int, dask_scheduler: Any = None) -> None:  # runs on the scheduler
+    dask_scheduler.allowed_failures = n
+
+
+def run_tasks(
+    scheduler: str,
+    fn: Callable[..., Any],
+    tasks: Mapping[str, tuple],
+    on_done: Callable[[str, Any], None],
+    connect_timeout_s: float = 10.0,
+) -> dict[str, str]:
+    """Submit ``fn(*args)`` for every ``key: args`` of ``tasks`` to the cluster at ``scheduler``
+    (``tcp://HOST:PORT``); call ``on_done(key, result)`` in this process as each finishes. Returns the
+    failed tasks as ``key: reason``. Raises :class:`ConnectionError` if the scheduler cannot be reached."""
+    from distributed import Client, as_completed
+
+    try:
+        client = Client(scheduler, timeout=connect_timeout_s, set_as_default=False)
+    except OSError as err:
+        raise RuntimeError(f"cannot reach the dask scheduler at {scheduler}: {err}") from err
+    failed: dict[str, str] = {}
+    futures: dict[Any, str] = {}
+    try:
+        client.run_on_scheduler(_set_allowed_failures, ALLOWED_WORKER_DEATHS)
+        for key, args in tasks.items():
+            # pure=False: a rerun must run again, not reuse the cluster's memory of an earlier result.
+            futures[client.submit(fn, *args, key=f"evservo-{key}", pure=False, retries=RETRIES)] = key
+        for fut in as_completed(list(futures), loop=client.loop):
+            key = futures[fut]
+            try:
+                result = fut.result()
+            except Exception as err:  # the task's own error or KilledWorker, after its retry
+                failed[key] = f"{type(err).__name__}: {err}"
+                continue
+            on_done(key, result)
+    except KeyboardInterrupt:
+        client.cancel(list(futures), force=True)
+        raise
+    finally:
+        client.close()
+    return failed

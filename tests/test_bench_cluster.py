@@ -1,0 +1,135 @@
+"""The paper suite's dask.distributed executor: a scheduler and two workers on 127.0.0.1, started here."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import replace
+
+import pytest
+
+from evservo.bench import paper
+from evservo.bench.cluster import run_tasks
+from evservo.sim.episode import EpisodeConfig
+
+distributed = pytest.importorskip("distributed")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _dask(*args: str) -> subprocess.Popen:
+    # Own session: a worker is killed with its nanny as a group, like a machine dropping out.
+    return subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_" + args[0], *args[1:]],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+
+
+@pytest.fixture
+def cluster():
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    procs = [_dask("scheduler", "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1], "--no-dashboard")]
+    common = ("--nworkers", "1", "--nthreads", "1", "--no-dashboard", "--host", "127.0.0.1")
+    procs += [_dask("worker", address, *common) for _ in range(2)]
+    client = distributed.Client(address, timeout=60, set_as_default=False)
+    try:
+        client.wait_for_workers(2, timeout=120)
+        yield address, procs
+    finally:
+        client.close()
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+
+
+def test_episodes_survive_a_worker_dying_and_a_task_that_kills_workers_is_reported(cluster):
+    address, procs = cluster
+    base = EpisodeConfig(duration_s=0.2, cost_model="fixed")
+    configs = {f"s{s}": replace(base, seed=s) for s in (1, 2, 3)}
+    done: dict[str, dict] = {}
+    killed = False
+
+    def on_done(key, result):
+        nonlocal killed
+        summary, files = result
+        assert {"summary.json", "log.csv", "motion.png"} <= set(files)
+        done[key] = summary
+        if not killed:  # one worker drops out with episodes still queued or running
+            os.killpg(procs[1].pid, signal.SIGKILL)
+            killed = True
+
+    failed = run_tasks(address, paper._remote_episode, {k: (c,) for k, c in configs.items()}, on_done)
+    assert failed == {} and set(done) == set(configs)
+    assert all(s["completed"] for s in done.values())
+    # The cluster's episode is the local one: same configuration, fixed cost model, same result.
+    local = paper._remote_episode(configs["s2"])[0]
+    assert done["s2"]["gt_track_pos_rms_mm"] == pytest.approx(local["gt_track_pos_rms_mm"], rel=1e-9)
+
+    # A task that kills every worker that runs it: one retry on the restarted worker, then reported failed;
+    # the cluster still runs the next task.
+    squares: dict[str, int] = {}
+    t0 = time.monotonic()
+    # (Library functions: workers cannot import this test module.)
+    failed = run_tasks(address, os._exit, {"bad": (3,)}, squares.__setitem__)
+    assert squares == {} and set(failed) == {"bad"} and "KilledWorker" in failed["bad"], failed
+    assert run_tasks(address, pow, {"ok": (4, 2)}, squares.__setitem__) == {}
+    assert squares == {"ok": 16}
+    assert time.monotonic() - t0 < 120
+
+
+def test_unreachable_scheduler_is_an_error():
+    with pytest.raises(RuntimeError, match="cannot reach the dask scheduler"):
+        run_tasks(f"tcp://127.0.0.1:{_free_port()}", pow, {"a": (1, 2)}, lambda k, r: None, connect_timeout_s=2)
+
+
+def test_config_hash_follows_configuration_and_code():
+    cfg = EpisodeConfig(duration_s=0.2)
+    code = paper.code_version()
+    assert len(code) == 64 and paper.code_version() == code
+    h = paper.config_hash(cfg, code)
+    assert paper.config_hash(replace(cfg), code) == h
+    assert paper.config_hash(replace(cfg, seed=cfg.seed + 1), code) != h
+    assert paper.config_hash(cfg, "0" * 64) != h
+    rendered = [c for _, c in paper.plan(quick=True, events="render")]
+    assert all(c.event_source == "render-lab" and c.render_arms and c.duration_s == 0.3 for c in rendered)
+    assert len({paper.episode_key(c) for c in rendered}) == len({paper.config_hash(c, code) for c in rendered})
+    with pytest.raises(ValueError, match="event source"):
+        paper.plan(quick=True, events="frames")
+
+
+def test_ctrl_c_cancels_the_clusters_tasks(cluster):
+    address, _ = cluster
+    code = (
+        "import time\n"
+        "from evservo.bench.cluster import run_tasks\n"
+        f"run_tasks({address!r}, time.sleep, {{'a': (60,), 'b': (60,)}}, print)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, text=True)
+    client = distributed.Client(address, timeout=30, set_as_default=False)
+    try:
+        deadline = time.monotonic() + 60
+        while not any(client.processing().values()):
+            assert time.monotonic() < deadline, "the tasks never started"
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode != 0 and "KeyboardInterrupt" in err
+        deadline = time.monotonic() + 20
+        while any(client.processing().values()):  # cancelled, not left sleeping on the workers
+            assert time.monotonic() < deadline, client.processing()
+            time.sleep(0.2)
+    finally:
+        client.close()
+        if proc.poll() is None:
+            proc.kill()
