@@ -295,6 +295,11 @@ def run_real_loop(
         sys.setswitchinterval(min(switch, 0.0005))
         pump.start()
         est = _settle(tracker, pump, cfg, clock, say)
+        # No cyclic garbage collection while servoing: a full collection can take longer than a period,
+        # and the loop makes no reference cycles. Collected after the arm has stopped. The collection
+        # before it (up to 0.5 s on a loaded machine) comes before the servo clock starts.
+        gc.collect()
+        gc.disable()
         t0 = clock()
         feed = _PoseFeed(tracker, pump, t0, est)
         pbvs.start(arm.T_w_e() @ T_e_c, est.T_c_o, t_s=feed.t_s)
@@ -305,10 +310,6 @@ def run_real_loop(
             d_deg = np.rad2deg(geometry.rotation_error_rad(des, est.T_c_o))
             say(f"desired pose is {d_mm:.1f} mm / {d_deg:.1f} deg from the tracked one: the arm will move to it")
         say(f"servoing for {cfg.duration_s:.2f} s at {cfg.rate_hz:.0f} Hz" + (" (DRY RUN)" if cfg.dry_run else ""))
-        # No cyclic garbage collection while servoing: a full collection can take longer than a period,
-        # and the loop makes no reference cycles. Collected after the arm has stopped.
-        gc.collect()
-        gc.disable()
         cadence = _Cadence(clock, t0, period)
         stopping: str | None = None  # why the loop is braking to its end
         stop_t, v_cmd, last_accepted_t = 0.0, np.zeros(6), feed.t_s
