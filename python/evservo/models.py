@@ -1,4 +1,4 @@
-"""Object models: three procedural built-ins, loading from files, and conversion to the core mesh.
+"""Object models: procedural built-ins, loading from files, and conversion to the core mesh.
 
 Every built-in is generated deterministically, in metres, with the object frame at the centre of
 its bounding box. Axes follow the OpenCV camera convention so that the identity rotation shows a
@@ -14,6 +14,19 @@ useful view (x right, y down, z away from the camera):
 * ``"football"``: a truncated icosahedron (12 black pentagons, 20 white hexagons), subdivided and
   inflated onto a sphere of radius 0.11 m, per-face colours.
 
+The hard objects of the ``objects`` bench suite (issue 13): attitude visible only through print,
+near-symmetric, low texture or thin. Cylinders run along y (upright under the identity rotation):
+
+* ``"can"``: a 0.066 x 0.115 m drink can whose label carries an irregular print (blocks of
+  different widths and heights at irregular angles), so rotation about its axis shows only there.
+* ``"cylinder"``: the same can, plain mid-grey: rotation about y is unobservable.
+* ``"checker-can"``: the can with a regular checker label of 8 periods: its edge set repeats under
+  45° turns about y (a discrete ambiguity).
+* ``"mug"``: a plain 0.08 x 0.095 m mug with a handle on +x; the handle alone fixes rotation about y.
+* ``"part"``: a low-texture matte machined part, one grey: an L-bracket with a round boss.
+* ``"plate"``: a thin 0.15 (x) x 0.004 (y) x 0.10 (z) m plate with a dark rim band: from the
+  recordings' start pose (:data:`evservo.sim.record.START_ROTVEC`) it is seen 18° off edge-on.
+
 Colours in the trimesh objects are sRGB; :func:`to_core_mesh` turns them into linear grayscale
 intensity (0 = black, 1 = white), which is what the renderer and the event simulator use.
 """
@@ -28,13 +41,27 @@ from PIL import Image
 
 from evservo import _evcore
 
-BUILTIN_OBJECTS = ("box", "drill", "football")
+BUILTIN_OBJECTS = ("box", "drill", "football", "can", "cylinder", "checker-can", "mug", "part", "plate")
 
 #: Bounding-box size (x, y, z) of each built-in, metres.
 BUILTIN_SIZES_M = {
     "box": (0.16, 0.21, 0.06),
     "drill": (0.28, 0.212, 0.075),
     "football": (0.22, 0.22, 0.22),
+    "can": (0.066, 0.115, 0.066),
+    "cylinder": (0.066, 0.115, 0.066),
+    "checker-can": (0.066, 0.115, 0.066),
+    "mug": (0.114, 0.095, 0.08),
+    "part": (0.12, 0.09, 0.05),
+    "plate": (0.15, 0.004, 0.10),
+}
+
+#: Rotation-symmetry axes (object frame) of the built-ins as (axis, period in degrees; 0 = any
+#: angle, a continuous symmetry), geometry and appearance together. Ground truth for the tests of
+#: the symmetry report; an object not listed has none.
+BUILTIN_SYMMETRIES = {
+    "cylinder": (((0.0, 1.0, 0.0), 0.0),),
+    "checker-can": (((0.0, 1.0, 0.0), 45.0),),
 }
 
 FOOTBALL_RADIUS_M = 0.11
@@ -205,7 +232,167 @@ def _make_football(subdivisions: int = 4) -> trimesh.Trimesh:
     return trimesh.Trimesh(unique, faces, face_colors=colours, process=False)
 
 
-_BUILDERS = {"box": _make_box, "drill": _make_drill, "football": _make_football}
+# --- cylinders: can, plain cylinder, checker can, mug -------------------------------------------
+
+CAN_RADIUS_M, CAN_HEIGHT_M = 0.033, 0.115
+_CAN_SECTIONS = 96
+_LABEL_PX = (256, 1024)  # (rows = height, columns = circumference)
+
+
+def _textured_cylinder(radius: float, height: float, label: np.ndarray, cap_grey: int) -> trimesh.Trimesh:
+    """A closed cylinder along y (centred on the origin) whose side carries ``label`` (rows top to
+    bottom = -y to +y, columns once around, starting at +x towards +z) and whose caps are ``cap_grey``.
+    The side has a seam column of duplicated vertices so that the texture wraps exactly once."""
+    n = _CAN_SECTIONS
+    h, w = label.shape[:2]
+    # Atlas: the label on the left, a one-column cap colour on the right.
+    atlas = np.empty((h, w + 8, 3), np.uint8)
+    atlas[:, :w] = label if label.ndim == 3 else label[..., None]
+    atlas[:, w:] = cap_grey
+    u_side = w / (w + 8)
+    u_cap = (w + 4) / (w + 8)
+    angles = np.linspace(0.0, 2 * np.pi, n + 1)
+    vertices, uvs, faces = [], [], []
+    for k, a in enumerate(angles):
+        x, z = radius * np.cos(a), radius * np.sin(a)
+        vertices += [(x, -height / 2, z), (x, height / 2, z)]
+        uvs += [(u_side * k / n, 1.0), (u_side * k / n, 0.0)]
+    for k in range(n):
+        a, b, c, d = 2 * k, 2 * k + 1, 2 * k + 2, 2 * k + 3
+        faces += [(a, c, b), (b, c, d)]
+    for y in (-height / 2, height / 2):
+        centre = len(vertices)
+        vertices.append((0.0, y, 0.0))
+        uvs.append((u_cap, 0.5))
+        ring = len(vertices)
+        for a in angles[:-1]:
+            vertices.append((radius * np.cos(a), y, radius * np.sin(a)))
+            uvs.append((u_cap, 0.5))
+        for k in range(n):
+            i, j = ring + k, ring + (k + 1) % n
+            faces.append((centre, i, j) if y > 0 else (centre, j, i))
+    visual = trimesh.visual.TextureVisuals(uv=np.array(uvs), image=Image.fromarray(atlas))
+    return trimesh.Trimesh(np.array(vertices), np.array(faces), visual=visual, process=False)
+
+
+def _irregular_label() -> np.ndarray:
+    """A can label: light ground, a dark band of irregular width, and blocks ("letters", a logo) of
+    different sizes and tilts, none repeating around the circumference."""
+    h, w = _LABEL_PX
+    rng = np.random.default_rng(13)
+    label = np.full((h, w, 3), (225, 215, 190), np.uint8)
+    yy, xx = np.mgrid[0:h, 0:w]
+    # A wavy dark band over about half the circumference.
+    centre = 0.7 * h + 0.08 * h * np.sin(2 * np.pi * xx / w * 1.0 + 0.4)
+    band = (np.abs(yy - centre) < 0.07 * h) & (xx < 0.55 * w)
+    label[band] = (40, 30, 90)
+    # Letter-like blocks at irregular positions and sizes.
+    for _ in range(14):
+        cx, cy = rng.uniform(0.05, 0.95) * w, rng.uniform(0.12, 0.5) * h
+        bw, bh = rng.uniform(0.015, 0.06) * w, rng.uniform(0.08, 0.22) * h
+        tilt = rng.uniform(-0.5, 0.5)
+        x_rot = (xx - cx) * np.cos(tilt) + (yy - cy) * np.sin(tilt)
+        y_rot = -(xx - cx) * np.sin(tilt) + (yy - cy) * np.cos(tilt)
+        label[(np.abs(x_rot) < bw / 2) & (np.abs(y_rot) < bh / 2)] = (25, 25, 25)
+    # One logo disc with a ring, on one side only.
+    d = np.hypot(xx - 0.8 * w, yy - 0.72 * h)
+    label[d < 0.09 * w] = (200, 40, 30)
+    label[(d < 0.06 * w) & (d > 0.035 * w)] = (250, 250, 250)
+    return label
+
+
+def _checker_label(periods: int = 8) -> np.ndarray:
+    """A regular checker: ``periods`` dark/light column pairs around, three rows."""
+    h, w = _LABEL_PX
+    yy, xx = np.mgrid[0:h, 0:w]
+    dark = ((xx * 2 * periods // w) + (yy * 3 // h)) % 2 == 0
+    label = np.full((h, w, 3), 230, np.uint8)
+    label[dark] = 25
+    return label
+
+
+def _make_can() -> trimesh.Trimesh:
+    return _textured_cylinder(CAN_RADIUS_M, CAN_HEIGHT_M, _irregular_label(), cap_grey=170)
+
+
+def _make_checker_can() -> trimesh.Trimesh:
+    return _textured_cylinder(CAN_RADIUS_M, CAN_HEIGHT_M, _checker_label(), cap_grey=170)
+
+
+def _make_cylinder() -> trimesh.Trimesh:
+    mesh = trimesh.creation.cylinder(CAN_RADIUS_M, CAN_HEIGHT_M, sections=_CAN_SECTIONS)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
+    return _plain(mesh, 0.35)
+
+
+def _plain(mesh: trimesh.Trimesh, albedo: float) -> trimesh.Trimesh:
+    """``mesh`` in one matte linear albedo, as vertex colours, centred on its bounding box."""
+    grey = int(_linear_to_srgb8(albedo))
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.tile((grey, grey, grey, 255), (len(mesh.vertices), 1)))
+    mesh.apply_translation(-(mesh.bounds[0] + mesh.bounds[1]) / 2.0)
+    return mesh
+
+
+def _make_mug() -> trimesh.Trimesh:
+    """A mug along y: body radius 0.04 m, height 0.095 m, and a handle loop (a torus section of
+    tube radius 6 mm) on +x. Parts overlap instead of being booleaned: the renderer only needs
+    the visible surface."""
+    body = trimesh.creation.cylinder(0.04, 0.095, sections=_CAN_SECTIONS)
+    body.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
+    handle = trimesh.creation.torus(0.028, 0.006, major_sections=48, minor_sections=12)
+    # The torus lies in the x-y plane after turning its axis (z) onto the mug's side.
+    handle.apply_translation((0.04, 0.0, 0.0))
+    return _plain(trimesh.util.concatenate([body, handle]), 0.6)
+
+
+def _make_part() -> trimesh.Trimesh:
+    """An L-bracket 0.12 x 0.09 x 0.05 m (base plate, upright wall, round boss on the base) in one
+    matte grey: only geometric edges, no print."""
+    base = trimesh.creation.box((0.12, 0.015, 0.05))
+    base.apply_translation((0.0, 0.0375, 0.0))
+    wall = trimesh.creation.box((0.015, 0.09, 0.05))
+    wall.apply_translation((-0.0525, 0.0, 0.0))
+    boss = trimesh.creation.cylinder(0.014, 0.02, sections=40)
+    boss.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
+    boss.apply_translation((0.025, 0.02, 0.0))
+    return _plain(trimesh.util.concatenate([base, wall, boss]), 0.4)
+
+
+def _make_plate() -> trimesh.Trimesh:
+    """A thin plate 0.15 (x) x 0.004 (y) x 0.10 (z) m, light with a dark border band on both faces
+    (per-vertex colour on an inner and outer ring of each face)."""
+    t, hx, hz, rim = 0.002, 0.075, 0.05, 0.012
+    outer = [(-hx, -hz), (hx, -hz), (hx, hz), (-hx, hz)]
+    inner = [(-hx + rim, -hz + rim), (hx - rim, -hz + rim), (hx - rim, hz - rim), (-hx + rim, hz - rim)]
+    dark, light = int(_linear_to_srgb8(0.04)), int(_linear_to_srgb8(0.8))
+    vertices, colours, faces = [], [], []
+    for y in (-t, t):
+        b = len(vertices)
+        vertices += [(x, y, z) for x, z in outer] + [(x, y, z) for x, z in inner] + [(x, y, z) for x, z in inner]
+        colours += [dark] * 8 + [light] * 4
+        for k in range(4):
+            o0, o1, i0, i1 = b + k, b + (k + 1) % 4, b + 4 + k, b + 4 + (k + 1) % 4
+            faces += [(o0, o1, i1), (o0, i1, i0)]
+        faces += [(b + 8, b + 9, b + 10), (b + 8, b + 10, b + 11)]
+    for k in range(4):  # the rim faces joining the two outer rings
+        a, c = k, (k + 1) % 4
+        faces += [(a, c, 12 + c), (a, 12 + c, 12 + a)]
+    grey = np.array(colours, np.uint8)
+    rgba = np.column_stack([grey, grey, grey, np.full_like(grey, 255)])
+    return trimesh.Trimesh(np.array(vertices, float), np.array(faces), vertex_colors=rgba, process=False)
+
+
+_BUILDERS = {
+    "box": _make_box,
+    "drill": _make_drill,
+    "football": _make_football,
+    "can": _make_can,
+    "cylinder": _make_cylinder,
+    "checker-can": _make_checker_can,
+    "mug": _make_mug,
+    "part": _make_part,
+    "plate": _make_plate,
+}
 
 
 def load_object(obj: str | os.PathLike | trimesh.Trimesh) -> trimesh.Trimesh:
