@@ -48,6 +48,7 @@ class Estimate:
     step: str
     cost: float
     inlier_fraction: float
+    visible_fraction: float
     n_events: int
     lost: bool
 

@@ -328,7 +328,8 @@ def _make_cylinder() -> trimesh.Trimesh:
 def _plain(mesh: trimesh.Trimesh, albedo: float) -> trimesh.Trimesh:
     """``mesh`` in one matte linear albedo, as vertex colours, centred on its bounding box."""
     grey = int(_linear_to_srgb8(albedo))
-    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.tile((grey, grey, grey, 255), (len(mesh.vertices), 1)))
+    colours = np.tile((grey, grey, grey, 255), (len(mesh.vertices), 1))
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
     mesh.apply_translation(-(mesh.bounds[0] + mesh.bounds[1]) / 2.0)
     return mesh
 

@@ -16,7 +16,7 @@ use crate::event::EventBatch;
 use crate::field::{DistanceField, FieldParams};
 use crate::image::Roi;
 use crate::se3::Pose;
-use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32};
+use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32, ViewMask};
 use crate::solve::lm::{lm_pyramid, LmParams};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
@@ -80,6 +80,9 @@ pub struct Estimate {
     /// Mean distance-field value over the model points (full-res pixels).
     pub cost: f32,
     pub inlier_fraction: f32,
+    /// Fraction of the model points that project where the sensor sees (they alone enter the cost
+    /// and `inlier_fraction`); below 1 when the object is partly out of view.
+    pub visible_fraction: f32,
     /// Events ingested so far.
     pub n_events: u64,
     pub lost: bool,
@@ -104,6 +107,9 @@ pub struct TrackerCore {
     points: Vec<[f32; 3]>,
     pivot_o: Vector3<f64>,
     pins: Vec<Pinhole>,
+    view: ViewMask,
+    /// The points visible at the current step (reused buffer).
+    visible: Vec<[f32; 3]>,
     schedule: Schedule,
     config: TrackerConfig,
     last: Estimate,
@@ -113,6 +119,13 @@ pub struct TrackerCore {
     pixels: Vec<u32>,
     polarity: Vec<i16>,
 }
+
+/// Model points closer than this to the border of what the sensor sees leave the cost (full-res
+/// pixels): their field is cut off on one side.
+const VIEW_MARGIN_PX: f64 = 2.0;
+
+/// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
+const MIN_VISIBLE_POINTS: usize = 6;
 
 fn check_pose(pose: &Pose) -> Result<()> {
     let ok = pose.translation.vector.iter().all(|v| v.is_finite())
@@ -162,6 +175,8 @@ impl TrackerCore {
             points: points_o,
             pivot_o,
             pins,
+            view: ViewMask::new(&camera, VIEW_MARGIN_PX),
+            visible: Vec::new(),
             schedule,
             config,
             last: Estimate {
@@ -171,6 +186,7 @@ impl TrackerCore {
                 step: StepKind::Search,
                 cost: 0.0,
                 inlier_fraction: 0.0,
+                visible_fraction: 1.0,
                 n_events: 0,
                 lost: false,
             },
@@ -285,6 +301,21 @@ impl TrackerCore {
             self.last.seq += 1;
             return self.last;
         };
+        let mut visible = std::mem::take(&mut self.visible);
+        self.view.visible_points(
+            &self.pins[0],
+            &Rigid32::from_pose(&pose),
+            &self.points,
+            &mut visible,
+        );
+        let visible_fraction = visible.len() as f32 / self.points.len() as f32;
+        if visible.len() < MIN_VISIBLE_POINTS {
+            self.visible = visible;
+            self.last.lost = true;
+            self.last.visible_fraction = visible_fraction;
+            self.last.seq += 1;
+            return self.last;
+        }
         let n_levels = if kind == StepKind::Lm {
             self.config.field.levels
         } else {
@@ -300,15 +331,15 @@ impl TrackerCore {
                     .rev()
                     .map(|l| (self.field.level(l), self.pins[l as usize]))
                     .collect();
-                lm_pyramid(&levels, pose, &self.points, &self.pivot_o, &self.config.lm).pose
+                lm_pyramid(&levels, pose, &visible, &self.pivot_o, &self.config.lm).pose
             }
             (Ok(()), StepKind::Search) => {
-                let deltas = axis_steps(&self.pins[0], &pose, &self.points, &self.pivot_o, 8);
+                let deltas = axis_steps(&self.pins[0], &pose, &visible, &self.pivot_o, 8);
                 search_step(
                     self.field.level(0),
                     &self.pins[0],
                     &pose,
-                    &self.points,
+                    &visible,
                     &self.pivot_o,
                     &deltas,
                 )
@@ -329,9 +360,10 @@ impl TrackerCore {
             self.field.level(0),
             &self.pins[0],
             &Rigid32::from_pose(&accepted),
-            &self.points,
+            &visible,
             self.config.inlier_px,
         );
+        self.visible = visible;
         self.last = Estimate {
             pose: accepted,
             t_us: self.last_t_us.unwrap_or(0),
@@ -339,6 +371,7 @@ impl TrackerCore {
             step: kind,
             cost: quality.mean,
             inlier_fraction: quality.inlier_fraction,
+            visible_fraction,
             n_events: self.last.n_events,
             lost: quality.inlier_fraction < self.config.lost_inlier_fraction,
         };
@@ -419,7 +452,7 @@ impl EstimateCell {
             u64::from(e.inlier_fraction.to_bits()),
             e.n_events,
             u64::from(e.lost),
-            0,
+            u64::from(e.visible_fraction.to_bits()),
             0,
         ]
     }
@@ -440,6 +473,7 @@ impl EstimateCell {
             inlier_fraction: f32::from_bits(w[11] as u32),
             n_events: w[12],
             lost: w[13] != 0,
+            visible_fraction: f32::from_bits(w[14] as u32),
         }
     }
 
@@ -617,6 +651,7 @@ mod tests {
             step: StepKind::Lm,
             cost: 1.5,
             inlier_fraction: 0.5,
+            visible_fraction: 0.75,
             n_events: seq * 3,
             lost: false,
         };

@@ -50,6 +50,11 @@ impl PyEstimate {
     fn inlier_fraction(&self) -> f32 {
         self.inner.inlier_fraction
     }
+    /// Fraction of the model points projecting where the sensor sees (the rest leave the cost).
+    #[getter]
+    fn visible_fraction(&self) -> f32 {
+        self.inner.visible_fraction
+    }
     #[getter]
     fn n_events(&self) -> u64 {
         self.inner.n_events

@@ -7,7 +7,7 @@ import os
 import shutil
 from pathlib import Path
 
-SUITES = ("latency", "paper")
+SUITES = ("latency", "paper", "objects")
 #: Marks a directory of copied report files as ours to replace on the next run.
 STAMP = "SOURCE.txt"
 
@@ -21,6 +21,13 @@ def run(args: argparse.Namespace) -> int:
         paper.run(Path(args.out), quick=args.quick, jobs=args.jobs)
         print(f"wrote {Path(args.out) / 'report.md'} and results.json")
         _refresh(args, "paper", Path(args.out) / "report.md")
+        return 0
+    if args.suite == "objects":
+        from evservo.bench import objects
+
+        objects.run(Path(args.out), quick=args.quick)
+        print(f"wrote {Path(args.out) / 'objects.md'} and objects.json")
+        _refresh(args, "objects", Path(args.out) / "objects.md")
         return 0
     from evservo.bench import latency
 
@@ -51,7 +58,7 @@ def _refresh(args: argparse.Namespace, section: str, report: Path) -> None:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    b = sub.add_parser("bench", help="benchmark suites: latency, paper")
+    b = sub.add_parser("bench", help="benchmark suites: latency, paper, objects")
     b.add_argument("--suite", choices=SUITES, default="latency")
     b.add_argument("--out", default="out/bench", help="output directory")
     b.add_argument("--quick", action="store_true", help="short runs, one seed (for tests)")

@@ -371,6 +371,65 @@ mod tests {
     }
 
     #[test]
+    fn an_unconstrained_direction_is_held_and_reported() {
+        // Two long rails along the object's x: sliding along them changes nothing in the image.
+        let cam = Camera::imx636();
+        let pin = Pinhole::at_level(&cam, 0);
+        let truth = Isometry3::translation(0.0, 0.0, 0.6);
+        let points: Vec<[f32; 3]> = (0..200)
+            .map(|i| {
+                [
+                    -0.1 + 0.001 * (i / 2) as f32,
+                    if i % 2 == 0 { -0.05 } else { 0.05 },
+                    0.0,
+                ]
+            })
+            .collect();
+        let rig = Rigid32::from_pose(&truth);
+        let segments = [-0.05f32, 0.05]
+            .iter()
+            .map(|&y| {
+                [
+                    pin.project(rig.apply([-3.0, y, 0.0])).unwrap(),
+                    pin.project(rig.apply([3.0, y, 0.0])).unwrap(),
+                ]
+            })
+            .collect();
+        let map = testing::SegmentMap {
+            segments,
+            tau: 10.0,
+        };
+        let start = Isometry3::translation(0.005, 0.0015, 0.6);
+        let levels = [(&map, pin)];
+        let out = lm_pyramid(
+            &levels,
+            start,
+            &points,
+            &centroid(&points),
+            &LmParams::default(),
+        );
+        let t = out.pose.translation.vector;
+        assert!((t.y).abs() < 1e-4, "y residual {:.3} mm", t.y * 1e3);
+        assert!((t.x - 0.005).abs() < 1e-6, "x moved to {:.4} mm", t.x * 1e3);
+        // Sliding along x is held; so may be a depth/tilt mix (the rails are planar), never more.
+        assert!((1..=2).contains(&out.n_held), "{} held", out.n_held);
+        let along_x: f64 = out.held[..out.n_held].iter().map(|h| h[0] * h[0]).sum();
+        assert!(along_x > 0.99, "x lies outside the held span: {along_x}");
+    }
+
+    #[test]
+    fn tukey_ignores_far_outliers_that_pull_huber() {
+        let (r, k) = (5.0f32, 2.0);
+        assert_eq!(robust_loss(Robust::Tukey, r, k).1, 0.0);
+        assert!(robust_loss(Robust::Huber, r, k).1 > 0.0);
+        // Both are least squares near zero.
+        for kind in [Robust::Huber, Robust::Tukey] {
+            let (rho, w) = robust_loss(kind, 0.01, k);
+            assert!((rho - 0.5e-4).abs() < 1e-7 && (w - 1.0).abs() < 1e-4);
+        }
+    }
+
+    #[test]
     fn no_gradient_leaves_the_pose_alone() {
         let cam = Camera::imx636();
         let far_away = Isometry3::translation(5.0, 5.0, 0.6);
