@@ -34,6 +34,7 @@ intensity (0 = black, 1 = white), which is what the renderer and the event simul
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 import numpy as np
 import trimesh
@@ -56,12 +57,15 @@ BUILTIN_SIZES_M = {
     "plate": (0.15, 0.004, 0.10),
 }
 
-#: Rotation-symmetry axes (object frame) of the built-ins as (axis, period in degrees; 0 = any
-#: angle, a continuous symmetry), geometry and appearance together. Ground truth for the tests of
-#: the symmetry report; an object not listed has none.
+#: Rotation symmetries of the built-ins' edge images (geometry and print together) as
+#: (axis in the object frame, period in degrees; 0 = continuous), each about the object origin.
+#: Known by construction; :func:`symmetries` finds them by rendering. A name not listed has none.
 BUILTIN_SYMMETRIES = {
-    "cylinder": (((0.0, 1.0, 0.0), 0.0),),
-    "checker-can": (((0.0, 1.0, 0.0), 45.0),),
+    "cylinder": (((0.0, 1.0, 0.0), 0.0), ((1.0, 0.0, 0.0), 180.0), ((0.0, 0.0, 1.0), 180.0)),
+    # 16 columns alternating dark and light: one column's turn swaps the polarity, not the edges.
+    "checker-can": (((0.0, 1.0, 0.0), 22.5), ((1.0, 0.0, 0.0), 180.0), ((0.0, 0.0, 1.0), 180.0)),
+    "mug": (((1.0, 0.0, 0.0), 180.0),),
+    "plate": (((1.0, 0.0, 0.0), 180.0), ((0.0, 1.0, 0.0), 180.0), ((0.0, 0.0, 1.0), 180.0)),
 }
 
 FOOTBALL_RADIUS_M = 0.11
@@ -349,13 +353,14 @@ def _make_mug() -> trimesh.Trimesh:
 def _make_part() -> trimesh.Trimesh:
     """An L-bracket 0.12 x 0.09 x 0.05 m (base plate, upright wall, round boss on the base) in one
     matte grey: only geometric edges, no print."""
-    base = trimesh.creation.box((0.12, 0.015, 0.05))
-    base.apply_translation((0.0, 0.0375, 0.0))
+    # Parts overlap a little instead of touching, so that no two share a vertex: each stays closed.
+    base = trimesh.creation.box((0.118, 0.015, 0.05))
+    base.apply_translation((0.001, 0.0375, 0.0))
     wall = trimesh.creation.box((0.015, 0.09, 0.05))
     wall.apply_translation((-0.0525, 0.0, 0.0))
     boss = trimesh.creation.cylinder(0.014, 0.02, sections=40)
     boss.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
-    boss.apply_translation((0.025, 0.02, 0.0))
+    boss.apply_translation((0.025, 0.025, 0.0))
     return _plain(trimesh.util.concatenate([base, wall, boss]), 0.4)
 
 
@@ -445,3 +450,105 @@ def to_core_mesh(mesh: trimesh.Trimesh, default_intensity: float = 0.5) -> _evco
             vertex_intensity=np.repeat(per_face, 3),
         )
     return _evcore.Mesh(vertices, faces, intensity=default_intensity)
+
+
+# --- symmetry ----------------------------------------------------------------------------------
+
+#: Turns (degrees) tried about each candidate axis; the small ones decide "continuous".
+SYMMETRY_ANGLES_DEG = (7.5, 15.0, 22.5, 30.0, 36.0, 45.0, 60.0, 72.0, 90.0, 120.0, 180.0)
+#: A turn is a symmetry when the edge images before and after differ by less than this (mean
+#: symmetric chamfer distance, pixels).
+SYMMETRY_TOL_PX = 0.75
+
+
+@dataclass(frozen=True)
+class Symmetry:
+    """A rotation that leaves the object's edge image unchanged (geometry and print together).
+
+    ``axis_o`` is a unit vector in the object frame through ``centre_o`` (metres). ``period_deg`` is
+    0 for a continuous symmetry (the rotation about the axis is unobservable: a tracker must hold
+    it at its prior) and otherwise the smallest turn that repeats the edges (a discrete ambiguity:
+    poses that far apart cannot be told apart from edges).
+    """
+
+    axis_o: tuple[float, float, float]
+    centre_o: tuple[float, float, float]
+    period_deg: float
+
+    @property
+    def continuous(self) -> bool:
+        return self.period_deg == 0.0
+
+
+def builtin_symmetries(name: str) -> list[Symmetry]:
+    """The symmetries of a built-in object (see :data:`BUILTIN_SYMMETRIES`); [] for any other name."""
+    return [Symmetry(axis, (0.0, 0.0, 0.0), period) for axis, period in BUILTIN_SYMMETRIES.get(name, ())]
+
+
+def _candidate_axes(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+    """(centre (3,), axes (3, 3) as rows): the area-weighted centroid and principal axes of the surface,
+    where every symmetry axis of a body lies."""
+    area = np.asarray(mesh.area_faces)
+    centres = np.asarray(mesh.triangles_center)
+    centre = (centres * area[:, None]).sum(0) / area.sum()
+    d = centres - centre
+    cov = (d * area[:, None]).T @ d / area.sum()
+    return centre, np.linalg.eigh(cov)[1].T
+
+
+def _edge_pixels(mesh: _evcore.Mesh, camera: _evcore.Camera, T_c_o: np.ndarray) -> np.ndarray:
+    """All edge pixels (silhouette, crease, print) of one rendering, (N, 2) integer (u, v)."""
+    points, _ = _evcore.extract_point_set(mesh, camera, T_c_o, max_points=1_000_000)
+    p = points @ T_c_o[:3, :3].T + T_c_o[:3, 3]
+    uv = np.column_stack([camera.fx * p[:, 0] / p[:, 2] + camera.cx, camera.fy * p[:, 1] / p[:, 2] + camera.cy])
+    return np.round(uv).astype(int)
+
+
+def _chamfer_px(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> float:
+    """Symmetric mean chamfer distance between two pixel sets (pixels)."""
+    import cv2
+
+    def mean_distance(src: np.ndarray, dst: np.ndarray) -> float:
+        img = np.full(shape, 255, np.uint8)
+        img[dst[:, 1], dst[:, 0]] = 0
+        dt = cv2.distanceTransform(img, cv2.DIST_L2, 5)
+        return float(dt[src[:, 1], src[:, 0]].mean())
+
+    return max(mean_distance(a, b), mean_distance(b, a))
+
+
+def symmetries(
+    obj: str | os.PathLike | trimesh.Trimesh,
+    camera: _evcore.Camera | None = None,
+    T_c_o: np.ndarray | None = None,
+) -> list[Symmetry]:
+    """Rotation symmetries of an object's edge image about its principal axes, judged by rendering
+    it at ``T_c_o`` (default: the recordings' start rotation at the depth where it spans about
+    300 px of the rectified imx636) and turned about each axis by :data:`SYMMETRY_ANGLES_DEG`.
+    Edges are what the tracker sees, so print counts: a labelled can has no symmetry, a plain one a
+    continuous one, a can with a regular 8-period checker label a 45° one."""
+    shape_mesh = load_object(obj)
+    mesh = to_core_mesh(shape_mesh)
+    camera = (camera or _evcore.Camera.imx636()).rectified()
+    if T_c_o is None:
+        from evservo.sim.record import start_pose
+
+        T_c_o = start_pose(camera.fx * mesh.bounding_radius / 150.0)
+    image_shape = (camera.height, camera.width)
+    reference = _edge_pixels(mesh, camera, T_c_o)
+    centre, axes = _candidate_axes(shape_mesh)
+    found = []
+    for axis in axes:
+        matches = []
+        for deg in SYMMETRY_ANGLES_DEG:
+            turn = np.eye(4)
+            turn[:3, :3] = trimesh.transformations.rotation_matrix(np.deg2rad(deg), axis, centre)[:3, :3]
+            turn[:3, 3] = centre - turn[:3, :3] @ centre
+            turned = _edge_pixels(mesh, camera, T_c_o @ turn)
+            matches.append(_chamfer_px(turned, reference, image_shape) < SYMMETRY_TOL_PX)
+        if not any(matches):
+            continue
+        continuous = all(matches[:3])
+        period = 0.0 if continuous else SYMMETRY_ANGLES_DEG[matches.index(True)]
+        found.append(Symmetry(tuple(float(a) for a in axis), tuple(float(c) for c in centre), period))
+    return found

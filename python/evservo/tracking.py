@@ -12,7 +12,7 @@ import numpy as np
 
 from evservo import _evcore
 from evservo.geometry import as_pose
-from evservo.models import load_object, to_core_mesh
+from evservo.models import Symmetry, builtin_symmetries, load_object, to_core_mesh
 
 SOLVERS = ("edft+", "edopts", "edft")
 FRONTENDS = ("scarf", "fixed-count", "eros")
@@ -59,6 +59,10 @@ class Tracker:
         solver: "edft+" (1 LM step then ``n_search`` search steps), "edopts" (search only), "edft" (LM only).
         frontend: "scarf" (velocity-invariant, default), "fixed-count" or "eros".
         n_points: size of the model point set S*.
+        symmetries: the object's rotation symmetries (:func:`evservo.models.symmetries`); default:
+            known ones of a built-in object, none otherwise. Rotation about a continuous one is
+            unobservable and held at the initial pose's (:attr:`unobservable_axes`); discrete ones
+            are ambiguities the tracker cannot resolve (:attr:`ambiguities`).
     """
 
     def __init__(
@@ -74,6 +78,7 @@ class Tracker:
         tau_px: float = 10.0,
         levels: int = 3,
         seed: int = 0,
+        symmetries: list[Symmetry] | None = None,
     ) -> None:
         if solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
@@ -84,9 +89,24 @@ class Tracker:
         self.solver = solver
         self.frontend = frontend
         self.points_o = model_point_set(camera, mesh, T, n_points=n_points, seed=seed)
+        if symmetries is None:
+            symmetries = builtin_symmetries(mesh) if isinstance(mesh, str) else []
+        self.symmetries = list(symmetries)
+        held = [(*s.axis_o, *s.centre_o) for s in self.symmetries if s.continuous]
         self._core = _evcore.Tracker(
-            camera, self.points_o, T, solver=solver, frontend=frontend, n_search=n_search, tau_px=tau_px, levels=levels
-        )
+            camera, self.points_o, T, solver=solver, frontend=frontend, n_search=n_search, tau_px=tau_px,
+            levels=levels, held_axes=np.array(held, float).reshape(-1, 6),
+        )  # fmt: skip
+
+    @property
+    def unobservable_axes(self) -> list[tuple[float, float, float]]:
+        """Object-frame axes whose rotation the edges cannot observe (held at the initial pose's)."""
+        return [s.axis_o for s in self.symmetries if s.continuous]
+
+    @property
+    def ambiguities(self) -> list[Symmetry]:
+        """Discrete symmetries: turns by a multiple of ``period_deg`` about ``axis_o`` look the same."""
+        return [s for s in self.symmetries if not s.continuous]
 
     def update(self, events: np.ndarray) -> Estimate:
         """Synchronous: ingest the batch, run one cycle (1 LM + N search, or N+1 steps), return the estimate."""

@@ -48,6 +48,9 @@ pub struct TrackerConfig {
     pub lost_inlier_fraction: f32,
     /// An update that moves the pose further than this (metres or radians) is rejected as a jump.
     pub max_jump: f64,
+    /// Continuous symmetries of the object as (unit axis, a point on it), object frame (metres):
+    /// rotation about them is unobservable, so every update keeps the prior's spin about them.
+    pub held_axes_o: Vec<(Vector3<f64>, Vector3<f64>)>,
 }
 
 impl Default for TrackerConfig {
@@ -63,6 +66,7 @@ impl Default for TrackerConfig {
             inlier_px: 2.0,
             lost_inlier_fraction: 0.15,
             max_jump: 0.25,
+            held_axes_o: Vec::new(),
         }
     }
 }
@@ -126,6 +130,21 @@ const VIEW_MARGIN_PX: f64 = 2.0;
 
 /// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
 const MIN_VISIBLE_POINTS: usize = 6;
+
+/// `new` with its rotation relative to `prior` about each of `axes` (object frame, each a unit
+/// axis and a point on it) removed; the points on the axis stay where `new` put them.
+fn hold_axes(prior: &Pose, new: Pose, axes: &[(Vector3<f64>, Vector3<f64>)]) -> Pose {
+    let mut out = new;
+    for (axis, on_axis) in axes {
+        let relative = (prior.rotation.inverse() * out.rotation).scaled_axis();
+        let spin = UnitQuaternion::from_scaled_axis(axis * relative.dot(axis));
+        let anchor = out * Point3::from(*on_axis);
+        let rotation = out.rotation * spin.inverse();
+        let translation = anchor.coords - rotation * on_axis;
+        out = Pose::from_parts(Translation3::from(translation), rotation);
+    }
+    out
+}
 
 fn check_pose(pose: &Pose) -> Result<()> {
     let ok = pose.translation.vector.iter().all(|v| v.is_finite())
@@ -346,6 +365,7 @@ impl TrackerCore {
                 .pose
             }
         };
+        let new_pose = hold_axes(&pose, new_pose, &self.config.held_axes_o);
         let (dt, dr) = crate::se3::distance(&pose, &new_pose);
         let accepted = if check_pose(&new_pose).is_ok()
             && dt <= self.config.max_jump
@@ -640,6 +660,44 @@ fn run(mut core: TrackerCore, shared: &Shared) -> TrackerCore {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn held_axes_keep_the_prior_spin_and_the_rest_of_the_update() {
+        let prior = crate::se3::exp(&nalgebra::Vector6::new(0.01, -0.02, 0.7, 0.3, -0.2, 0.1));
+        let axis = Vector3::new(0.0, 1.0, 0.0);
+        let on_axis = Vector3::new(0.01, 0.0, -0.02);
+        // One update's worth: 2° of spin about the axis, 0.5° of tilt about the object's x, 5 mm sideways.
+        let spin = Pose::from_parts(
+            Translation3::from(
+                on_axis - UnitQuaternion::from_scaled_axis(axis * 2f64.to_radians()) * on_axis,
+            ),
+            UnitQuaternion::from_scaled_axis(axis * 2f64.to_radians()),
+        );
+        let tilt = Pose::from_parts(
+            Translation3::new(0.005, 0.0, 0.0),
+            // About the object's x (camera-frame axis), which has no part along the held y.
+            UnitQuaternion::from_scaled_axis(prior.rotation * Vector3::x() * 0.5f64.to_radians()),
+        );
+        let new = tilt * prior * spin;
+        let held = hold_axes(&prior, new, &[(axis, on_axis)]);
+        let expected = tilt * prior;
+        let (dt, dr) = crate::se3::distance(&held, &expected);
+        // The tilt about x and the spin about y do not commute: what remains is second order.
+        assert!(
+            dt < 5e-5 && dr < 0.03f64.to_radians(),
+            "{} mm, {} deg",
+            dt * 1e3,
+            dr.to_degrees()
+        );
+        let (dt, dr) = crate::se3::distance(&held, &new);
+        assert!(
+            dr > 1.99f64.to_radians(),
+            "spin not removed: {} mm, {} deg",
+            dt * 1e3,
+            dr.to_degrees()
+        );
+        assert_eq!(hold_axes(&prior, new, &[]), new);
+    }
 
     #[test]
     fn estimate_cell_round_trips_and_survives_concurrent_readers() {

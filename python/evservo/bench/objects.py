@@ -102,9 +102,7 @@ def render_case(case: Case, camera: _evcore.Camera) -> tuple[np.ndarray, np.ndar
 
     gt_t = np.unique(np.round(np.arange(0, case.duration_s * 1e6 + 1, 1e6 / GT_RATE_HZ)).astype(np.int64))
     gt_T = pose_at(gt_t)
-    sim = _evcore.SimCamera(
-        camera, mesh, preset="imx636", seed=case.seed, T_c_bg=background_pose(case.distance_m, 0.6)
-    )
+    sim = _evcore.SimCamera(camera, mesh, preset="imx636", seed=case.seed, T_c_bg=background_pose(case.distance_m, 0.6))
     occluders = None
     if case.condition == "occluded":
         occ_mesh, T_occ = occluder(case, camera, radius)

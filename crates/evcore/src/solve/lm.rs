@@ -183,10 +183,15 @@ impl Observability {
         let eigenvalues = Vector6::from_fn(|i, _| eig.eigenvalues[order[i]].max(0.0));
         let eigenvectors = Matrix6::from_fn(|r, c| eig.eigenvectors[(r, order[c])]);
         let top = eigenvalues[5];
-        let n_weak = eigenvalues
-            .iter()
-            .take_while(|&&l| !(l > weak_ratio * top) || top <= 0.0)
-            .count();
+        // A non-finite or empty H constrains nothing: every direction is weak.
+        let n_weak = if top.is_finite() && top > 0.0 {
+            eigenvalues
+                .iter()
+                .take_while(|&&l| !l.is_finite() || l <= weak_ratio * top)
+                .count()
+        } else {
+            6
+        };
         Self {
             eigenvalues,
             eigenvectors,
