@@ -2,8 +2,10 @@
 //! each level a robust Gauss–Newton problem damped LM-style.
 //!
 //! Residual of point i: r_i = field value at its projection (an unsigned distance in that level's
-//! pixels), Jacobian ∇field · ∂u/∂ξ. Weights are Huber's or Tukey's at `robust_px` (IRLS); points on
-//! the truncation plateau have zero gradient, so the truncation also cuts outliers off.
+//! pixels), Jacobian ∇field · ∂u/∂ξ. Weights are Tukey's (default) or Huber's at `robust_px` (IRLS):
+//! Tukey's give points far from every event (occluded, or on an edge that made no events) no pull,
+//! where Huber's let them drag the pose (benches/RESULTS.md, objects suite). The whole pyramidal step
+//! is kept only if it lowers Eq. (1) at full resolution.
 //!
 //! Every iteration looks at the normal equations in their eigenbasis, with the translation scaled
 //! by the model's radius so that a unit of every axis moves the points by about the same amount.
@@ -50,8 +52,8 @@ impl Default for LmParams {
     fn default() -> Self {
         Self {
             max_iterations: 6,
-            robust: Robust::Huber,
-            robust_px: 2.0,
+            robust: Robust::Tukey,
+            robust_px: 4.0,
             mu_initial: 1e-3,
             mu_max: 1e4,
             min_step: 1e-5,
@@ -318,6 +320,15 @@ pub fn lm_pyramid<M: CostMap>(
     let cost = levels.last().map_or(0.0, |(map, pin)| {
         (robust_cost(*map, pin, &pose_out, points, params) / points.len().max(1) as f64) as f32
     });
+    // Coarse levels can lock onto the wrong edge; the step is kept only if it lowers Eq. (1) at full
+    // resolution, the cost the search steps minimise, so LM never undoes what the search gained.
+    if let Some((map, pin)) = levels.last() {
+        let before = super::cost::total_cost(*map, pin, &Rigid32::from_pose(&pose), points);
+        let after = super::cost::total_cost(*map, pin, &Rigid32::from_pose(&pose_out), points);
+        if !(after <= before) {
+            pose_out = pose;
+        }
+    }
     let mut held = [Vector6::zeros(); 6];
     let n_held = last_obs.map_or(0, |o| {
         for (k, h) in held.iter_mut().enumerate().take(o.n_weak) {
