@@ -66,3 +66,18 @@ def test_labelled_can_meets_the_accuracy_target(can_rows):
 def test_lm_is_never_much_worse_than_the_search_on_rotation(can_rows):
     for solver in ("edft+", "edft"):
         assert can_rows[solver]["rot_rms_deg"] <= can_rows["edopts"]["rot_rms_deg"] + 0.5, can_rows
+
+
+@pytest.mark.parametrize("extent_px", [30.0, 40.0, 60.0, 100.0, 159.0, 200.0, 900.0])
+def test_field_scale_keeps_the_coarsest_level_readable(extent_px):
+    from evservo.tracking import field_scale
+
+    levels, tau = field_scale(extent_px)
+    assert 1 <= levels <= 3
+    # The object spans 40 px or more at the coarsest level, unless it is smaller than that already.
+    assert extent_px / 2 ** (levels - 1) >= min(40.0, extent_px)
+    # One level deeper would shrink it below that: no level is dropped needlessly.
+    assert levels == 3 or extent_px / 2**levels < 40.0
+    assert 4.0 <= tau <= 10.0 and (tau <= extent_px / 8.0 or tau == 4.0)
+    if extent_px >= 160:
+        assert (levels, tau) == (3, 10.0)  # the paper's settings for objects of ordinary size

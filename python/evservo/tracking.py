@@ -49,6 +49,24 @@ def model_point_set(
     return points
 
 
+def image_extent_px(camera: _evcore.Camera, points_o: np.ndarray, T_c_o: np.ndarray) -> float:
+    """Diagonal (pixels) of the bounding box of ``points_o`` (object frame) projected at ``T_c_o``."""
+    p = points_o @ T_c_o[:3, :3].T + T_c_o[:3, 3]
+    uv = np.column_stack([camera.fx * p[:, 0] / p[:, 2], camera.fy * p[:, 1] / p[:, 2]])
+    return float(np.hypot(*(uv.max(axis=0) - uv.min(axis=0))))
+
+
+def field_scale(extent_px: float) -> tuple[int, float]:
+    """(pyramid levels, truncation τ in full-resolution pixels) for an object spanning ``extent_px``.
+
+    The coarsest level must still show the object at about 40 px or more (at 10 px its edges merge
+    into one blob and LM registers to the blob), and τ must stay below about an eighth of its size
+    (a wider basin reaches across the object to the opposite edge). Objects of 160 px and more get
+    the paper's 3 levels and τ = 10 px."""
+    levels = 1 + int(extent_px >= 80.0) + int(extent_px >= 160.0)
+    return levels, float(np.clip(extent_px / 8.0, 4.0, 10.0))
+
+
 class Tracker:
     """Event-based 6-DoF object tracker (EDFT⁺ and its two baselines).
 
@@ -59,6 +77,8 @@ class Tracker:
         solver: "edft+" (1 LM step then ``n_search`` search steps), "edopts" (search only), "edft" (LM only).
         frontend: "scarf" (velocity-invariant, default), "fixed-count" or "eros".
         n_points: size of the model point set S*.
+        tau_px, levels: truncation of the distance field (full-resolution pixels) and pyramid depth;
+            default: from the object's size in the image (:func:`field_scale`).
         symmetries: the object's rotation symmetries (:func:`evservo.models.symmetries`); default:
             known ones of a built-in object, none otherwise. Rotation about a continuous one is
             unobservable and held at the initial pose's (:attr:`unobservable_axes`); discrete ones
@@ -75,8 +95,8 @@ class Tracker:
         *,
         n_points: int = 1000,
         n_search: int = 4,
-        tau_px: float = 10.0,
-        levels: int = 3,
+        tau_px: float | None = None,
+        levels: int | None = None,
         seed: int = 0,
         symmetries: list[Symmetry] | None = None,
     ) -> None:
@@ -89,6 +109,9 @@ class Tracker:
         self.solver = solver
         self.frontend = frontend
         self.points_o = model_point_set(camera, mesh, T, n_points=n_points, seed=seed)
+        auto_levels, auto_tau = field_scale(image_extent_px(camera, self.points_o, T))
+        levels = auto_levels if levels is None else levels
+        tau_px = auto_tau if tau_px is None else tau_px
         if symmetries is None:
             symmetries = builtin_symmetries(mesh) if isinstance(mesh, str) else []
         self.symmetries = list(symmetries)

@@ -138,9 +138,11 @@ def track_case(
     T_gt = gt_at(gt_t, gt_T, edges)
     err_mm = np.array([geometry.translation_error_m(a, b) for a, b in zip(Ts, T_gt, strict=True)]) * 1e3
     err_deg = np.rad2deg([geometry.rotation_error_rad(a, b) for a, b in zip(Ts, T_gt, strict=True)])
+    depth_mm = (np.array(Ts)[:, 2, 3] - T_gt[:, 2, 3]) * 1e3
     return dict(
         case=case.name, **asdict(case), solver=solver, updates=len(Ts),
         pos_rms_mm=float(np.sqrt(np.mean(err_mm**2))), rot_rms_deg=float(np.sqrt(np.mean(err_deg**2))),
+        depth_rms_mm=float(np.sqrt(np.mean(depth_mm**2))),
         pos_max_mm=float(err_mm.max()), rot_max_deg=float(err_deg.max()),
         lost_fraction=float(np.mean(lost)), visible_fraction=float(np.mean(visible)),
         updates_per_s=len(Ts) / solve_s if solve_s > 0 else 0.0,
