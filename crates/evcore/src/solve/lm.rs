@@ -325,7 +325,7 @@ pub fn lm_pyramid<M: CostMap>(
     if let Some((map, pin)) = levels.last() {
         let before = super::cost::total_cost(*map, pin, &Rigid32::from_pose(&pose), points);
         let after = super::cost::total_cost(*map, pin, &Rigid32::from_pose(&pose_out), points);
-        if !(after <= before) {
+        if after > before || after.is_nan() {
             pose_out = pose;
         }
     }
