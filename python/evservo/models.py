@@ -1,4 +1,4 @@
-"""Object models: three procedural built-ins, loading from files, and conversion to the core mesh.
+"""Object models: procedural built-ins, loading from files, and conversion to the core mesh.
 
 Every built-in is generated deterministically, in metres, with the object frame at the centre of
 its bounding box. Axes follow the OpenCV camera convention so that the identity rotation shows a
@@ -14,6 +14,19 @@ useful view (x right, y down, z away from the camera):
 * ``"football"``: a truncated icosahedron (12 black pentagons, 20 white hexagons), subdivided and
   inflated onto a sphere of radius 0.11 m, per-face colours.
 
+The hard objects of the ``objects`` bench suite (issue 13): attitude visible only through print,
+near-symmetric, low texture or thin. Cylinders run along y (upright under the identity rotation):
+
+* ``"can"``: a 0.066 x 0.115 m drink can whose label carries an irregular print (blocks of
+  different widths and heights at irregular angles), so rotation about its axis shows only there.
+* ``"cylinder"``: the same can, plain mid-grey: rotation about y is unobservable.
+* ``"checker-can"``: the can with a regular checker label of 8 periods: its edge set repeats under
+  45° turns about y (a discrete ambiguity).
+* ``"mug"``: a plain 0.08 x 0.095 m mug with a handle on +x; the handle alone fixes rotation about y.
+* ``"part"``: a low-texture matte machined part, one grey: an L-bracket with a round boss.
+* ``"plate"``: a thin 0.15 (x) x 0.004 (y) x 0.10 (z) m plate with a dark rim band: from the
+  recordings' start pose (:data:`evservo.sim.record.START_ROTVEC`) it is seen 18° off edge-on.
+
 Colours in the trimesh objects are sRGB; :func:`to_core_mesh` turns them into linear grayscale
 intensity (0 = black, 1 = white), which is what the renderer and the event simulator use.
 """
@@ -21,6 +34,7 @@ intensity (0 = black, 1 = white), which is what the renderer and the event simul
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 import numpy as np
 import trimesh
@@ -28,13 +42,30 @@ from PIL import Image
 
 from evservo import _evcore
 
-BUILTIN_OBJECTS = ("box", "drill", "football")
+BUILTIN_OBJECTS = ("box", "drill", "football", "can", "cylinder", "checker-can", "mug", "part", "plate")
 
 #: Bounding-box size (x, y, z) of each built-in, metres.
 BUILTIN_SIZES_M = {
     "box": (0.16, 0.21, 0.06),
     "drill": (0.28, 0.212, 0.075),
     "football": (0.22, 0.22, 0.22),
+    "can": (0.066, 0.115, 0.066),
+    "cylinder": (0.066, 0.115, 0.066),
+    "checker-can": (0.066, 0.115, 0.066),
+    "mug": (0.114, 0.095, 0.08),
+    "part": (0.12, 0.09, 0.05),
+    "plate": (0.15, 0.004, 0.10),
+}
+
+#: Rotation symmetries of the built-ins' edge images (geometry and print together) as
+#: (axis in the object frame, period in degrees; 0 = continuous), each about the object origin.
+#: Known by construction; :func:`symmetries` finds them by rendering. A name not listed has none.
+BUILTIN_SYMMETRIES = {
+    "cylinder": (((0.0, 1.0, 0.0), 0.0), ((1.0, 0.0, 0.0), 180.0), ((0.0, 0.0, 1.0), 180.0)),
+    # 16 columns alternating dark and light: one column's turn swaps the polarity, not the edges.
+    "checker-can": (((0.0, 1.0, 0.0), 22.5), ((1.0, 0.0, 0.0), 180.0), ((0.0, 0.0, 1.0), 180.0)),
+    "mug": (((1.0, 0.0, 0.0), 180.0),),
+    "plate": (((1.0, 0.0, 0.0), 180.0), ((0.0, 1.0, 0.0), 180.0), ((0.0, 0.0, 1.0), 180.0)),
 }
 
 FOOTBALL_RADIUS_M = 0.11
@@ -205,7 +236,169 @@ def _make_football(subdivisions: int = 4) -> trimesh.Trimesh:
     return trimesh.Trimesh(unique, faces, face_colors=colours, process=False)
 
 
-_BUILDERS = {"box": _make_box, "drill": _make_drill, "football": _make_football}
+# --- cylinders: can, plain cylinder, checker can, mug -------------------------------------------
+
+CAN_RADIUS_M, CAN_HEIGHT_M = 0.033, 0.115
+_CAN_SECTIONS = 96
+_LABEL_PX = (256, 1024)  # (rows = height, columns = circumference)
+
+
+def _textured_cylinder(radius: float, height: float, label: np.ndarray, cap_grey: int) -> trimesh.Trimesh:
+    """A closed cylinder along y (centred on the origin) whose side carries ``label`` (rows top to
+    bottom = -y to +y, columns once around, starting at +x towards +z) and whose caps are ``cap_grey``.
+    The side has a seam column of duplicated vertices so that the texture wraps exactly once."""
+    n = _CAN_SECTIONS
+    h, w = label.shape[:2]
+    # Atlas: the label on the left, a one-column cap colour on the right.
+    atlas = np.empty((h, w + 8, 3), np.uint8)
+    atlas[:, :w] = label if label.ndim == 3 else label[..., None]
+    atlas[:, w:] = cap_grey
+    u_side = w / (w + 8)
+    u_cap = (w + 4) / (w + 8)
+    angles = np.linspace(0.0, 2 * np.pi, n + 1)
+    vertices, uvs, faces = [], [], []
+    for k, a in enumerate(angles):
+        x, z = radius * np.cos(a), radius * np.sin(a)
+        vertices += [(x, -height / 2, z), (x, height / 2, z)]
+        uvs += [(u_side * k / n, 1.0), (u_side * k / n, 0.0)]
+    for k in range(n):
+        a, b, c, d = 2 * k, 2 * k + 1, 2 * k + 2, 2 * k + 3
+        faces += [(a, c, b), (b, c, d)]
+    for y in (-height / 2, height / 2):
+        centre = len(vertices)
+        vertices.append((0.0, y, 0.0))
+        uvs.append((u_cap, 0.5))
+        ring = len(vertices)
+        for a in angles[:-1]:
+            vertices.append((radius * np.cos(a), y, radius * np.sin(a)))
+            uvs.append((u_cap, 0.5))
+        for k in range(n):
+            i, j = ring + k, ring + (k + 1) % n
+            faces.append((centre, i, j) if y > 0 else (centre, j, i))
+    visual = trimesh.visual.TextureVisuals(uv=np.array(uvs), image=Image.fromarray(atlas))
+    return trimesh.Trimesh(np.array(vertices), np.array(faces), visual=visual, process=False)
+
+
+def _irregular_label() -> np.ndarray:
+    """A can label: light ground, a dark band of irregular width, and blocks ("letters", a logo) of
+    different sizes and tilts, none repeating around the circumference."""
+    h, w = _LABEL_PX
+    rng = np.random.default_rng(13)
+    label = np.full((h, w, 3), (225, 215, 190), np.uint8)
+    yy, xx = np.mgrid[0:h, 0:w]
+    # A wavy dark band over about half the circumference.
+    centre = 0.7 * h + 0.08 * h * np.sin(2 * np.pi * xx / w * 1.0 + 0.4)
+    band = (np.abs(yy - centre) < 0.07 * h) & (xx < 0.55 * w)
+    label[band] = (40, 30, 90)
+    # Letter-like blocks at irregular positions and sizes.
+    for _ in range(14):
+        cx, cy = rng.uniform(0.05, 0.95) * w, rng.uniform(0.12, 0.5) * h
+        bw, bh = rng.uniform(0.015, 0.06) * w, rng.uniform(0.08, 0.22) * h
+        tilt = rng.uniform(-0.5, 0.5)
+        x_rot = (xx - cx) * np.cos(tilt) + (yy - cy) * np.sin(tilt)
+        y_rot = -(xx - cx) * np.sin(tilt) + (yy - cy) * np.cos(tilt)
+        label[(np.abs(x_rot) < bw / 2) & (np.abs(y_rot) < bh / 2)] = (25, 25, 25)
+    # One logo disc with a ring, on one side only.
+    d = np.hypot(xx - 0.8 * w, yy - 0.72 * h)
+    label[d < 0.09 * w] = (200, 40, 30)
+    label[(d < 0.06 * w) & (d > 0.035 * w)] = (250, 250, 250)
+    return label
+
+
+def _checker_label(periods: int = 8) -> np.ndarray:
+    """A regular checker: ``periods`` dark/light column pairs around, three rows."""
+    h, w = _LABEL_PX
+    yy, xx = np.mgrid[0:h, 0:w]
+    dark = ((xx * 2 * periods // w) + (yy * 3 // h)) % 2 == 0
+    label = np.full((h, w, 3), 230, np.uint8)
+    label[dark] = 25
+    return label
+
+
+def _make_can() -> trimesh.Trimesh:
+    return _textured_cylinder(CAN_RADIUS_M, CAN_HEIGHT_M, _irregular_label(), cap_grey=170)
+
+
+def _make_checker_can() -> trimesh.Trimesh:
+    return _textured_cylinder(CAN_RADIUS_M, CAN_HEIGHT_M, _checker_label(), cap_grey=170)
+
+
+def _make_cylinder() -> trimesh.Trimesh:
+    mesh = trimesh.creation.cylinder(CAN_RADIUS_M, CAN_HEIGHT_M, sections=_CAN_SECTIONS)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
+    return _plain(mesh, 0.35)
+
+
+def _plain(mesh: trimesh.Trimesh, albedo: float) -> trimesh.Trimesh:
+    """``mesh`` in one matte linear albedo, as vertex colours, centred on its bounding box."""
+    grey = int(_linear_to_srgb8(albedo))
+    colours = np.tile((grey, grey, grey, 255), (len(mesh.vertices), 1))
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
+    mesh.apply_translation(-(mesh.bounds[0] + mesh.bounds[1]) / 2.0)
+    return mesh
+
+
+def _make_mug() -> trimesh.Trimesh:
+    """A mug along y: body radius 0.04 m, height 0.095 m, and a handle loop (a torus section of
+    tube radius 6 mm) on +x. Parts overlap instead of being booleaned: the renderer only needs
+    the visible surface."""
+    body = trimesh.creation.cylinder(0.04, 0.095, sections=_CAN_SECTIONS)
+    body.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
+    handle = trimesh.creation.torus(0.028, 0.006, major_sections=48, minor_sections=12)
+    # The torus lies in the x-y plane after turning its axis (z) onto the mug's side.
+    handle.apply_translation((0.04, 0.0, 0.0))
+    return _plain(trimesh.util.concatenate([body, handle]), 0.6)
+
+
+def _make_part() -> trimesh.Trimesh:
+    """An L-bracket 0.12 x 0.09 x 0.05 m (base plate, upright wall, round boss on the base) in one
+    matte grey: only geometric edges, no print."""
+    # Parts overlap a little instead of touching, so that no two share a vertex: each stays closed.
+    base = trimesh.creation.box((0.118, 0.015, 0.05))
+    base.apply_translation((0.001, 0.0375, 0.0))
+    wall = trimesh.creation.box((0.015, 0.09, 0.05))
+    wall.apply_translation((-0.0525, 0.0, 0.0))
+    boss = trimesh.creation.cylinder(0.014, 0.02, sections=40)
+    boss.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
+    boss.apply_translation((0.025, 0.025, 0.0))
+    return _plain(trimesh.util.concatenate([base, wall, boss]), 0.4)
+
+
+def _make_plate() -> trimesh.Trimesh:
+    """A thin plate 0.15 (x) x 0.004 (y) x 0.10 (z) m, light with a dark border band on both faces
+    (per-vertex colour on an inner and outer ring of each face)."""
+    t, hx, hz, rim = 0.002, 0.075, 0.05, 0.012
+    outer = [(-hx, -hz), (hx, -hz), (hx, hz), (-hx, hz)]
+    inner = [(-hx + rim, -hz + rim), (hx - rim, -hz + rim), (hx - rim, hz - rim), (-hx + rim, hz - rim)]
+    dark, light = int(_linear_to_srgb8(0.04)), int(_linear_to_srgb8(0.8))
+    vertices, colours, faces = [], [], []
+    for y in (-t, t):
+        b = len(vertices)
+        vertices += [(x, y, z) for x, z in outer] + [(x, y, z) for x, z in inner] + [(x, y, z) for x, z in inner]
+        colours += [dark] * 8 + [light] * 4
+        for k in range(4):
+            o0, o1, i0, i1 = b + k, b + (k + 1) % 4, b + 4 + k, b + 4 + (k + 1) % 4
+            faces += [(o0, o1, i1), (o0, i1, i0)]
+        faces += [(b + 8, b + 9, b + 10), (b + 8, b + 10, b + 11)]
+    for k in range(4):  # the rim faces joining the two outer rings
+        a, c = k, (k + 1) % 4
+        faces += [(a, c, 12 + c), (a, 12 + c, 12 + a)]
+    grey = np.array(colours, np.uint8)
+    rgba = np.column_stack([grey, grey, grey, np.full_like(grey, 255)])
+    return trimesh.Trimesh(np.array(vertices, float), np.array(faces), vertex_colors=rgba, process=False)
+
+
+_BUILDERS = {
+    "box": _make_box,
+    "drill": _make_drill,
+    "football": _make_football,
+    "can": _make_can,
+    "cylinder": _make_cylinder,
+    "checker-can": _make_checker_can,
+    "mug": _make_mug,
+    "part": _make_part,
+    "plate": _make_plate,
+}
 
 
 def load_object(obj: str | os.PathLike | trimesh.Trimesh) -> trimesh.Trimesh:
@@ -257,3 +450,105 @@ def to_core_mesh(mesh: trimesh.Trimesh, default_intensity: float = 0.5) -> _evco
             vertex_intensity=np.repeat(per_face, 3),
         )
     return _evcore.Mesh(vertices, faces, intensity=default_intensity)
+
+
+# --- symmetry ----------------------------------------------------------------------------------
+
+#: Turns (degrees) tried about each candidate axis; the small ones decide "continuous".
+SYMMETRY_ANGLES_DEG = (7.5, 15.0, 22.5, 30.0, 36.0, 45.0, 60.0, 72.0, 90.0, 120.0, 180.0)
+#: A turn is a symmetry when the edge images before and after differ by less than this (mean
+#: symmetric chamfer distance, pixels).
+SYMMETRY_TOL_PX = 0.75
+
+
+@dataclass(frozen=True)
+class Symmetry:
+    """A rotation that leaves the object's edge image unchanged (geometry and print together).
+
+    ``axis_o`` is a unit vector in the object frame through ``centre_o`` (metres). ``period_deg`` is
+    0 for a continuous symmetry (the rotation about the axis is unobservable: a tracker must hold
+    it at its prior) and otherwise the smallest turn that repeats the edges (a discrete ambiguity:
+    poses that far apart cannot be told apart from edges).
+    """
+
+    axis_o: tuple[float, float, float]
+    centre_o: tuple[float, float, float]
+    period_deg: float
+
+    @property
+    def continuous(self) -> bool:
+        return self.period_deg == 0.0
+
+
+def builtin_symmetries(name: str) -> list[Symmetry]:
+    """The symmetries of a built-in object (see :data:`BUILTIN_SYMMETRIES`); [] for any other name."""
+    return [Symmetry(axis, (0.0, 0.0, 0.0), period) for axis, period in BUILTIN_SYMMETRIES.get(name, ())]
+
+
+def _candidate_axes(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+    """(centre (3,), axes (3, 3) as rows): the area-weighted centroid and principal axes of the surface,
+    where every symmetry axis of a body lies."""
+    area = np.asarray(mesh.area_faces)
+    centres = np.asarray(mesh.triangles_center)
+    centre = (centres * area[:, None]).sum(0) / area.sum()
+    d = centres - centre
+    cov = (d * area[:, None]).T @ d / area.sum()
+    return centre, np.linalg.eigh(cov)[1].T
+
+
+def _edge_pixels(mesh: _evcore.Mesh, camera: _evcore.Camera, T_c_o: np.ndarray) -> np.ndarray:
+    """All edge pixels (silhouette, crease, print) of one rendering, (N, 2) integer (u, v)."""
+    points, _ = _evcore.extract_point_set(mesh, camera, T_c_o, max_points=1_000_000)
+    p = points @ T_c_o[:3, :3].T + T_c_o[:3, 3]
+    uv = np.column_stack([camera.fx * p[:, 0] / p[:, 2] + camera.cx, camera.fy * p[:, 1] / p[:, 2] + camera.cy])
+    return np.round(uv).astype(int)
+
+
+def _chamfer_px(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> float:
+    """Symmetric mean chamfer distance between two pixel sets (pixels)."""
+    import cv2
+
+    def mean_distance(src: np.ndarray, dst: np.ndarray) -> float:
+        img = np.full(shape, 255, np.uint8)
+        img[dst[:, 1], dst[:, 0]] = 0
+        dt = cv2.distanceTransform(img, cv2.DIST_L2, 5)
+        return float(dt[src[:, 1], src[:, 0]].mean())
+
+    return max(mean_distance(a, b), mean_distance(b, a))
+
+
+def symmetries(
+    obj: str | os.PathLike | trimesh.Trimesh,
+    camera: _evcore.Camera | None = None,
+    T_c_o: np.ndarray | None = None,
+) -> list[Symmetry]:
+    """Rotation symmetries of an object's edge image about its principal axes, judged by rendering
+    it at ``T_c_o`` (default: the recordings' start rotation at the depth where it spans about
+    300 px of the rectified imx636) and turned about each axis by :data:`SYMMETRY_ANGLES_DEG`.
+    Edges are what the tracker sees, so print counts: a labelled can has no symmetry, a plain one a
+    continuous one, a can with a regular 8-period checker label a 45° one."""
+    shape_mesh = load_object(obj)
+    mesh = to_core_mesh(shape_mesh)
+    camera = (camera or _evcore.Camera.imx636()).rectified()
+    if T_c_o is None:
+        from evservo.sim.record import start_pose
+
+        T_c_o = start_pose(camera.fx * mesh.bounding_radius / 150.0)
+    image_shape = (camera.height, camera.width)
+    reference = _edge_pixels(mesh, camera, T_c_o)
+    centre, axes = _candidate_axes(shape_mesh)
+    found = []
+    for axis in axes:
+        matches = []
+        for deg in SYMMETRY_ANGLES_DEG:
+            turn = np.eye(4)
+            turn[:3, :3] = trimesh.transformations.rotation_matrix(np.deg2rad(deg), axis, centre)[:3, :3]
+            turn[:3, 3] = centre - turn[:3, :3] @ centre
+            turned = _edge_pixels(mesh, camera, T_c_o @ turn)
+            matches.append(_chamfer_px(turned, reference, image_shape) < SYMMETRY_TOL_PX)
+        if not any(matches):
+            continue
+        continuous = all(matches[:3])
+        period = 0.0 if continuous else SYMMETRY_ANGLES_DEG[matches.index(True)]
+        found.append(Symmetry(tuple(float(a) for a in axis), tuple(float(c) for c in centre), period))
+    return found

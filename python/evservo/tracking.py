@@ -17,7 +17,7 @@ import numpy as np
 from evservo import _evcore
 from evservo.events import as_event_cd
 from evservo.geometry import as_pose
-from evservo.models import load_object, to_core_mesh
+from evservo.models import Symmetry, builtin_symmetries, load_object, to_core_mesh
 
 #: The solver and front-end names the core accepts (parsed in Rust only; these lists come from it).
 SOLVERS: tuple[str, ...] = tuple(_evcore.SOLVERS)
@@ -54,6 +54,24 @@ def model_point_set(
     return points
 
 
+def image_extent_px(camera: _evcore.Camera, points_o: np.ndarray, T_c_o: np.ndarray) -> float:
+    """Diagonal (pixels) of the bounding box of ``points_o`` (object frame) projected at ``T_c_o``."""
+    p = points_o @ T_c_o[:3, :3].T + T_c_o[:3, 3]
+    uv = np.column_stack([camera.fx * p[:, 0] / p[:, 2], camera.fy * p[:, 1] / p[:, 2]])
+    return float(np.hypot(*(uv.max(axis=0) - uv.min(axis=0))))
+
+
+def field_scale(extent_px: float) -> tuple[int, float]:
+    """(pyramid levels, truncation τ in full-resolution pixels) for an object spanning ``extent_px``.
+
+    The coarsest level must still show the object at about 40 px or more (at 10 px its edges merge
+    into one blob and LM registers to the blob), and τ must stay below about an eighth of its size
+    (a wider basin reaches across the object to the opposite edge). Objects of 160 px and more get
+    the paper's 3 levels and τ = 10 px."""
+    levels = 1 + int(extent_px >= 80.0) + int(extent_px >= 160.0)
+    return levels, float(np.clip(extent_px / 8.0, 4.0, 10.0))
+
+
 class Tracker:
     """Event-based 6-DoF object tracker (EDFT⁺ and its two baselines).
 
@@ -64,6 +82,12 @@ class Tracker:
         solver: "edft+" (1 LM step then ``n_search`` search steps), "edopts" (search only), "edft" (LM only).
         frontend: "scarf" (velocity-invariant, default), "fixed-count" or "eros".
         n_points: size of the model point set S*.
+        tau_px, levels: truncation of the distance field (full-resolution pixels) and pyramid depth;
+            default: from the object's size in the image (:func:`field_scale`).
+        symmetries: the object's rotation symmetries (:func:`evservo.models.symmetries`); default:
+            known ones of a built-in object, none otherwise. Rotation about a continuous one is
+            unobservable and held at the initial pose's (:attr:`unobservable_axes`); discrete ones
+            are ambiguities the tracker cannot resolve (:attr:`ambiguities`).
         ingest_core_share: while running, ``push`` thins the stream so that ingest uses at most this
             share of the caller's core (measured on the fly); None keeps every event.
         max_ingest_rate: instead, a fixed cap on the events ingested per second of event time.
@@ -83,23 +107,41 @@ class Tracker:
         *,
         n_points: int = 1000,
         n_search: int = 4,
-        tau_px: float = 10.0,
-        levels: int = 3,
+        tau_px: float | None = None,
+        levels: int | None = None,
         seed: int = 0,
         ingest_core_share: float | None = 0.5,
         max_ingest_rate: float | None = None,
         anti_flicker_hz: float | Iterable[float] | None = None,
+        symmetries: list[Symmetry] | None = None,
     ) -> None:
         T = as_pose(T_c_o, "T_c_o")
         self.camera = camera
         self.solver = solver
         self.frontend = frontend
         self.points_o = model_point_set(camera, mesh, T, n_points=n_points, seed=seed)
+        auto_levels, auto_tau = field_scale(image_extent_px(camera, self.points_o, T))
+        levels = auto_levels if levels is None else levels
+        tau_px = auto_tau if tau_px is None else tau_px
+        if symmetries is None:
+            symmetries = builtin_symmetries(mesh) if isinstance(mesh, str) else []
+        self.symmetries = list(symmetries)
+        held = [(*s.axis_o, *s.centre_o) for s in self.symmetries if s.continuous]
         self._core = _evcore.Tracker(
             camera, self.points_o, T, solver=solver, frontend=frontend, n_search=n_search, tau_px=tau_px,
             levels=levels, ingest_core_share=ingest_core_share, max_ingest_rate=max_ingest_rate,
-            anti_flicker_hz=_frequencies(anti_flicker_hz),
+            anti_flicker_hz=_frequencies(anti_flicker_hz), held_axes=np.array(held, float).reshape(-1, 6),
         )  # fmt: skip
+
+    @property
+    def unobservable_axes(self) -> list[tuple[float, float, float]]:
+        """Object-frame axes whose rotation the edges cannot observe (held at the initial pose's)."""
+        return [s.axis_o for s in self.symmetries if s.continuous]
+
+    @property
+    def ambiguities(self) -> list[Symmetry]:
+        """Discrete symmetries: turns by a multiple of ``period_deg`` about ``axis_o`` look the same."""
+        return [s for s in self.symmetries if not s.continuous]
 
     def update(self, events: np.ndarray) -> Estimate:
         """Synchronous: ingest the batch, run one cycle (1 LM + N search, or N+1 steps), return the estimate."""

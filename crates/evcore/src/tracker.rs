@@ -29,7 +29,7 @@ use crate::event::{validate_events, EventRecords};
 use crate::field::{DistanceField, FieldParams};
 use crate::image::Roi;
 use crate::se3::Pose;
-use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32};
+use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32, ViewMask};
 use crate::solve::lm::{lm_pyramid, LmParams};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
@@ -65,6 +65,9 @@ pub struct TrackerConfig {
     /// Light flicker frequencies (Hz) whose periodic pixels are dropped before the front-end
     /// (100 on 50 Hz mains, 120 on 60 Hz); empty = no anti-flicker. See [`FlickerFilter`].
     pub anti_flicker_hz: Vec<f64>,
+    /// Continuous symmetries of the object as (unit axis, a point on it), object frame (metres):
+    /// rotation about them is unobservable, so every update keeps the prior's spin about them.
+    pub held_axes_o: Vec<(Vector3<f64>, Vector3<f64>)>,
 }
 
 impl Default for TrackerConfig {
@@ -80,6 +83,7 @@ impl Default for TrackerConfig {
             inlier_px: 2.0,
             lost_inlier_fraction: 0.15,
             max_jump: 0.25,
+            held_axes_o: Vec::new(),
             ingest_limit: IngestLimit::default(),
             anti_flicker_hz: Vec::new(),
         }
@@ -133,6 +137,9 @@ pub struct Estimate {
     /// Mean distance-field value over the model points (full-res pixels).
     pub cost: f32,
     pub inlier_fraction: f32,
+    /// Fraction of the model points that project where the sensor sees (they alone enter the cost
+    /// and `inlier_fraction`); below 1 when the object is partly out of view.
+    pub visible_fraction: f32,
     /// Events ingested into the front-end so far (after any thinning).
     pub n_events: u64,
     /// True while the object is not tracked, including before the first update (not yet locked).
@@ -153,6 +160,28 @@ pub struct TrackerStats {
     /// Events left out: thinned under overload or removed as flicker (offered − ingested).
     pub events_dropped: u64,
     pub jumps_rejected: u64,
+}
+
+/// Model points closer than this to the border of what the sensor sees leave the cost (full-res
+/// pixels): their field is cut off on one side.
+const VIEW_MARGIN_PX: f64 = 2.0;
+
+/// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
+const MIN_VISIBLE_POINTS: usize = 6;
+
+/// `new` with its rotation relative to `prior` about each of `axes` (object frame, each a unit
+/// axis and a point on it) removed; the points on the axis stay where `new` put them.
+fn hold_axes(prior: &Pose, new: Pose, axes: &[(Vector3<f64>, Vector3<f64>)]) -> Pose {
+    let mut out = new;
+    for (axis, on_axis) in axes {
+        let relative = (prior.rotation.inverse() * out.rotation).scaled_axis();
+        let spin = UnitQuaternion::from_scaled_axis(axis * relative.dot(axis));
+        let anchor = out * Point3::from(*on_axis);
+        let rotation = out.rotation * spin.inverse();
+        let translation = anchor.coords - rotation * on_axis;
+        out = Pose::from_parts(Translation3::from(translation), rotation);
+    }
+    out
 }
 
 /// A lock-free single-writer cell holding the newest estimate (a seqlock over 16 words).
@@ -189,7 +218,7 @@ impl EstimateCell {
             u64::from(e.inlier_fraction.to_bits()),
             e.n_events,
             u64::from(e.lost),
-            0,
+            u64::from(e.visible_fraction.to_bits()),
             0,
         ]
     }
@@ -210,6 +239,7 @@ impl EstimateCell {
             inlier_fraction: f32::from_bits(w[11] as u32),
             n_events: w[12],
             lost: w[13] != 0,
+            visible_fraction: f32::from_bits(w[14] as u32),
         }
     }
 
@@ -500,6 +530,9 @@ pub struct Solver {
     points: Vec<[f32; 3]>,
     pivot_o: Vector3<f64>,
     pins: Vec<Pinhole>,
+    view: ViewMask,
+    /// The points visible at the current step (reused buffer).
+    visible: Vec<[f32; 3]>,
     schedule: Schedule,
     config: TrackerConfig,
     last: Estimate,
@@ -536,6 +569,7 @@ impl Solver {
             .collect();
         let schedule = Schedule::new(config.solver, config.n_search)?;
         let pivot_o = centroid(&points_o);
+        let view = ViewMask::new(&sensor, VIEW_MARGIN_PX);
         let solver = Self {
             sensor,
             rect,
@@ -544,6 +578,8 @@ impl Solver {
             points: points_o,
             pivot_o,
             pins,
+            view,
+            visible: Vec::new(),
             schedule,
             last: Estimate {
                 pose: t_c_o,
@@ -552,6 +588,7 @@ impl Solver {
                 step: StepKind::Search,
                 cost: config.field.tau_px,
                 inlier_fraction: 0.0,
+                visible_fraction: 1.0,
                 n_events: 0,
                 lost: true,
             },
@@ -607,6 +644,22 @@ impl Solver {
             self.publish();
             return self.last;
         };
+        let mut visible = std::mem::take(&mut self.visible);
+        self.view.visible_points(
+            &self.pins[0],
+            &Rigid32::from_pose(&pose),
+            &self.points,
+            &mut visible,
+        );
+        let visible_fraction = visible.len() as f32 / self.points.len() as f32;
+        if visible.len() < MIN_VISIBLE_POINTS {
+            self.visible = visible;
+            self.last.lost = true;
+            self.last.visible_fraction = visible_fraction;
+            self.last.seq += 1;
+            self.publish();
+            return self.last;
+        }
         let n_levels = if kind == StepKind::Lm {
             self.config.field.levels
         } else {
@@ -622,21 +675,22 @@ impl Solver {
                     .rev()
                     .map(|l| (self.field.level(l), self.pins[l as usize]))
                     .collect();
-                lm_pyramid(&levels, pose, &self.points, &self.pivot_o, &self.config.lm).pose
+                lm_pyramid(&levels, pose, &visible, &self.pivot_o, &self.config.lm).pose
             }
             (Ok(()), StepKind::Search) => {
-                let deltas = axis_steps(&self.pins[0], &pose, &self.points, &self.pivot_o, 8);
+                let deltas = axis_steps(&self.pins[0], &pose, &visible, &self.pivot_o, 8);
                 search_step(
                     self.field.level(0),
                     &self.pins[0],
                     &pose,
-                    &self.points,
+                    &visible,
                     &self.pivot_o,
                     &deltas,
                 )
                 .pose
             }
         };
+        let new_pose = hold_axes(&pose, new_pose, &self.config.held_axes_o);
         let (dt, dr) = crate::se3::distance(&pose, &new_pose);
         let accepted = if check_pose(&new_pose).is_ok()
             && dt <= self.config.max_jump
@@ -651,9 +705,10 @@ impl Solver {
             self.field.level(0),
             &self.pins[0],
             &Rigid32::from_pose(&accepted),
-            &self.points,
+            &visible,
             self.config.inlier_px,
         );
+        self.visible = visible;
         self.last = Estimate {
             pose: accepted,
             t_us,
@@ -661,6 +716,7 @@ impl Solver {
             step: kind,
             cost: quality.mean,
             inlier_fraction: quality.inlier_fraction,
+            visible_fraction,
             n_events,
             lost: quality.inlier_fraction < self.config.lost_inlier_fraction,
         };
@@ -711,6 +767,7 @@ impl TrackerCore {
             step: StepKind::Search,
             cost: 0.0,
             inlier_fraction: 0.0,
+            visible_fraction: 1.0,
             n_events: 0,
             lost: true,
         };
@@ -1231,6 +1288,44 @@ mod tests {
     }
 
     #[test]
+    fn held_axes_keep_the_prior_spin_and_the_rest_of_the_update() {
+        let prior = crate::se3::exp(&nalgebra::Vector6::new(0.01, -0.02, 0.7, 0.3, -0.2, 0.1));
+        let axis = Vector3::new(0.0, 1.0, 0.0);
+        let on_axis = Vector3::new(0.01, 0.0, -0.02);
+        // One update's worth: 2° of spin about the axis, 0.5° of tilt about the object's x, 5 mm sideways.
+        let spin = Pose::from_parts(
+            Translation3::from(
+                on_axis - UnitQuaternion::from_scaled_axis(axis * 2f64.to_radians()) * on_axis,
+            ),
+            UnitQuaternion::from_scaled_axis(axis * 2f64.to_radians()),
+        );
+        let tilt = Pose::from_parts(
+            Translation3::new(0.005, 0.0, 0.0),
+            // About the object's x (camera-frame axis), which has no part along the held y.
+            UnitQuaternion::from_scaled_axis(prior.rotation * Vector3::x() * 0.5f64.to_radians()),
+        );
+        let new = tilt * prior * spin;
+        let held = hold_axes(&prior, new, &[(axis, on_axis)]);
+        let expected = tilt * prior;
+        let (dt, dr) = crate::se3::distance(&held, &expected);
+        // The tilt about x and the spin about y do not commute: what remains is second order.
+        assert!(
+            dt < 5e-5 && dr < 0.03f64.to_radians(),
+            "{} mm, {} deg",
+            dt * 1e3,
+            dr.to_degrees()
+        );
+        let (dt, dr) = crate::se3::distance(&held, &new);
+        assert!(
+            dr > 1.99f64.to_radians(),
+            "spin not removed: {} mm, {} deg",
+            dt * 1e3,
+            dr.to_degrees()
+        );
+        assert_eq!(hold_axes(&prior, new, &[]), new);
+    }
+
+    #[test]
     fn estimate_cell_round_trips_and_survives_concurrent_readers() {
         let pose = crate::se3::exp(&nalgebra::Vector6::new(0.1, 0.2, 0.6, 0.1, 0.2, 0.3));
         let mk = |seq: u64| Estimate {
@@ -1240,6 +1335,7 @@ mod tests {
             step: StepKind::Lm,
             cost: 1.5,
             inlier_fraction: 0.5,
+            visible_fraction: 0.75,
             n_events: seq * 3,
             lost: false,
         };

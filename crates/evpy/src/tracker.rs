@@ -54,6 +54,11 @@ impl PyEstimate {
     fn inlier_fraction(&self) -> f32 {
         self.inner.inlier_fraction
     }
+    /// Fraction of the model points projecting where the sensor sees (the rest leave the cost).
+    #[getter]
+    fn visible_fraction(&self) -> f32 {
+        self.inner.visible_fraction
+    }
     #[getter]
     fn n_events(&self) -> u64 {
         self.inner.n_events
@@ -109,9 +114,11 @@ pub struct PyTracker {
 impl PyTracker {
     /// Tracker(camera, points_o (N,3) metres in the object frame, T_c_o (4,4), solver="edft+",
     /// frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0,
-    /// ingest_core_share=0.5, max_ingest_rate=None, anti_flicker_hz=[])
+    /// ingest_core_share=0.5, max_ingest_rate=None, anti_flicker_hz=[], held_axes=None):
+    /// held_axes (K, 6) are continuous symmetry axes of the object (unit axis, then a point on it;
+    /// object frame, metres) whose rotation every update keeps at the prior.
     #[new]
-    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None, anti_flicker_hz=Vec::new()))]
+    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None, anti_flicker_hz=Vec::new(), held_axes=None))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -128,6 +135,7 @@ impl PyTracker {
         ingest_core_share: Option<f64>,
         max_ingest_rate: Option<f64>,
         anti_flicker_hz: Vec<f64>,
+        held_axes: Option<PyReadonlyArray2<'_, f64>>,
     ) -> PyResult<Self> {
         let pose = pose_arg(&T_c_o)?;
         let pts = points_o.as_array();
@@ -147,7 +155,25 @@ impl PyTracker {
             (None, Some(share)) => IngestLimit::CoreShare(share),
             (None, None) => IngestLimit::Off,
         };
+        let mut held_axes_o = Vec::new();
+        if let Some(a) = held_axes {
+            let a = a.as_array();
+            if a.ncols() != 6 || a.iter().any(|v| !v.is_finite()) {
+                return Err(PyValueError::new_err(format!(
+                    "held_axes must be a finite (K, 6) array (axis, point on it), got {:?}",
+                    a.shape()
+                )));
+            }
+            for r in a.rows() {
+                let axis = nalgebra::Vector3::new(r[0], r[1], r[2]);
+                if axis.norm() < 1e-9 {
+                    return Err(PyValueError::new_err("held_axes: an axis has zero length"));
+                }
+                held_axes_o.push((axis.normalize(), nalgebra::Vector3::new(r[3], r[4], r[5])));
+            }
+        }
         let config = TrackerConfig {
+            held_axes_o,
             solver: SolverMode::parse(solver).map_err(to_py)?,
             n_search,
             frontend: FrontEnd::parse(frontend).map_err(to_py)?,

@@ -7,9 +7,10 @@ import os
 import shutil
 from pathlib import Path
 
-SUITES = ("latency", "paper")
+SUITES = ("latency", "paper", "objects")
 #: Each suite's report files, removed at the start so an interrupted run leaves none of an earlier one.
-REPORTS = {"latency": ("latency.md", "latency.json"), "paper": ("report.md", "results.json")}
+REPORTS = {"latency": ("latency.md", "latency.json"), "paper": ("report.md", "results.json"),
+           "objects": ("objects.md", "objects.json")}
 #: Marks a directory of copied report files as ours to replace on the next run.
 STAMP = "SOURCE.txt"
 
@@ -29,6 +30,13 @@ def run(args: argparse.Namespace) -> int:
         paper.run(Path(args.out), quick=args.quick, jobs=args.jobs, events=args.events, scheduler=args.scheduler)
         print(f"wrote {Path(args.out) / 'report.md'} and results.json")
         _refresh(args, "paper" if args.events == "edges" else f"paper-{args.events}", Path(args.out) / "report.md")
+        return 0
+    if args.suite == "objects":
+        from evservo.bench import objects
+
+        objects.run(Path(args.out), quick=args.quick)
+        print(f"wrote {Path(args.out) / 'objects.md'} and objects.json")
+        _refresh(args, "objects", Path(args.out) / "objects.md")
         return 0
     if args.events != "edges" or args.scheduler is not None:
         raise ValueError("--events and --scheduler apply to the paper suite only")
@@ -61,7 +69,7 @@ def _refresh(args: argparse.Namespace, section: str, report: Path) -> None:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    b = sub.add_parser("bench", help="benchmark suites: latency, paper")
+    b = sub.add_parser("bench", help="benchmark suites: latency, paper, objects")
     b.add_argument("--suite", choices=SUITES, default="latency")
     b.add_argument("--out", default="out/bench", help="output directory")
     b.add_argument("--quick", action="store_true", help="short runs, one seed (for tests)")

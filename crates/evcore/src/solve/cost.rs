@@ -132,6 +132,72 @@ pub fn total_cost(map: &impl CostMap, pin: &Pinhole, pose: &Rigid32, points: &[[
     points.iter().map(|&x| point_cost(map, pin, pose, x)).sum()
 }
 
+/// Where in the rectified image events can appear: the pixels whose raw position (after
+/// distortion) lies on the sensor, shrunk by a margin. Model points that project elsewhere can never
+/// meet an event, so they drop out of the cost instead of counting as misses: a part of the object
+/// that left the image must not pull the pose towards keeping it in view.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ViewMask {
+    width: u32,
+    height: u32,
+    valid: Vec<bool>,
+}
+
+impl ViewMask {
+    /// The mask of raw sensor `camera` (distortion included) in its rectified grid, with every pixel
+    /// within `margin_px` of the invalid area or the border removed.
+    pub fn new(camera: &Camera, margin_px: f64) -> Self {
+        let (w, h) = (camera.width, camera.height);
+        let (lo, hi_u, hi_v) = (
+            margin_px - 0.5,
+            f64::from(w) - 0.5 - margin_px,
+            f64::from(h) - 0.5 - margin_px,
+        );
+        let inside = |u: f64, v: f64| u >= lo && v >= lo && u <= hi_u && v <= hi_v;
+        let valid = (0..camera.n_pixels())
+            .map(|i| {
+                let (u, v) = ((i % w as usize) as f64, (i / w as usize) as f64);
+                // Where a lens maps outside the sensor the rectified pixel sees nothing; the
+                // border margin applies on both sides of the warp.
+                let (ud, vd) = camera.distort_pixel(u, v);
+                inside(u, v) && inside(ud, vd)
+            })
+            .collect();
+        Self {
+            width: w,
+            height: h,
+            valid,
+        }
+    }
+
+    /// True when rectified full-resolution pixel position (u, v) can see events.
+    #[inline]
+    pub fn contains(&self, u: f32, v: f32) -> bool {
+        let (x, y) = (u.round(), v.round());
+        x >= 0.0
+            && y >= 0.0
+            && x < self.width as f32
+            && y < self.height as f32
+            && self.valid[y as usize * self.width as usize + x as usize]
+    }
+
+    /// The points of `points` that project into the mask at `pose` (full-resolution pinhole `pin`),
+    /// written to `out` (cleared first).
+    pub fn visible_points(
+        &self,
+        pin: &Pinhole,
+        pose: &Rigid32,
+        points: &[[f32; 3]],
+        out: &mut Vec<[f32; 3]>,
+    ) {
+        out.clear();
+        out.extend(points.iter().copied().filter(|&x| {
+            pin.project(pose.apply(x))
+                .is_some_and(|(u, v)| self.contains(u, v))
+        }));
+    }
+}
+
 /// Quality of an alignment: mean cost per point (pixels) and the fraction of points within
 /// `inlier_px` of an event.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -340,6 +406,57 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn view_mask_drops_the_border_and_what_the_lens_cannot_see() {
+        let cam = Camera::imx636();
+        let mask = ViewMask::new(&cam, 2.0);
+        assert!(mask.contains(640.0, 360.0));
+        assert!(!mask.contains(1.0, 360.0) && !mask.contains(640.0, 718.6));
+        assert!(!mask.contains(-5.0, 360.0) && !mask.contains(640.0, 1e6));
+        // Pincushion distortion (k1 > 0) pushes the rectified corners off the sensor: they see
+        // nothing, while the undistorted sensor sees them.
+        let pincushion = Camera::new(
+            1280,
+            720,
+            1100.0,
+            1100.0,
+            640.0,
+            360.0,
+            [0.3, 0.0, 0.0, 0.0, 0.0],
+        )
+        .unwrap();
+        assert!(!ViewMask::new(&pincushion, 2.0).contains(10.0, 10.0));
+        assert!(ViewMask::new(&pincushion, 2.0).contains(640.0, 30.0));
+        assert!(ViewMask::new(&pincushion.rectified(), 2.0).contains(10.0, 10.0));
+        // Every pixel marked valid maps to a raw pixel on the sensor.
+        let mask_p = ViewMask::new(&pincushion, 2.0);
+        for (u, v) in [
+            (3.0f32, 360.0f32),
+            (640.0, 3.0),
+            (200.0, 100.0),
+            (100.0, 60.0),
+        ] {
+            if mask_p.contains(u, v) {
+                let (ud, vd) = pincushion.distort_pixel(f64::from(u), f64::from(v));
+                assert!(ud >= 0.0 && vd >= 0.0 && ud < 1280.0 && vd < 720.0);
+            }
+        }
+        let pin = Pinhole::at_level(&cam, 0);
+        // A row of points at 0.6 m whose right half (x ≥ 0) lies past the right border: those drop out.
+        let points: Vec<[f32; 3]> = (0..100)
+            .map(|i| [-0.5 + 0.01 * i as f32, 0.0, 0.0])
+            .collect();
+        let shifted = Isometry3::translation(f64::from((1280.0 - pin.cx) / pin.fx * 0.6), 0.0, 0.6);
+        let mut out = Vec::new();
+        mask.visible_points(&pin, &Rigid32::from_pose(&shifted), &points, &mut out);
+        assert!(
+            out.len() > 45 && out.len() < 55,
+            "{} of 100 visible",
+            out.len()
+        );
+        assert!(out.iter().all(|p| p[0] < 0.0));
     }
 
     #[test]
