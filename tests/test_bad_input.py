@@ -68,12 +68,14 @@ def test_an_object_filling_the_view_is_called_too_close(camera):
 
 
 def test_corrupt_bench_summary_is_named(tmp_path, capsys):
-    from evservo.bench.paper import episode_key, plan
+    from evservo.bench.paper import code_version, config_hash, episode_key, plan
 
-    key = episode_key(plan(quick=True)[0][1])
-    bad = tmp_path / "episodes" / key / "summary.json"
+    cfg = plan(quick=True)[0][1]
+    bad = tmp_path / "episodes" / episode_key(cfg) / "summary.json"
     bad.parent.mkdir(parents=True)
     bad.write_text('{"completed": tru')
+    # Stamped as this configuration and code's episode, so the suite takes it as finished.
+    (bad.parent / "config_hash").write_text(config_hash(cfg, code_version()))
     assert main(["bench", "--suite", "paper", "--quick", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("evservo: error:") and str(bad) in err and "delete it" in err
