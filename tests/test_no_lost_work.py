@@ -39,6 +39,7 @@ def small_rec(tmp_path_factory):
         ["servo", "--robot", "sim", "--camera", "{rec}", "--duration", "0.5", "--out", "{file}"],
         ["bench", "--suite", "paper", "--quick", "--out", "{file}"],
         ["bench", "--suite", "latency", "--quick", "--out", "{file}/sub"],
+        ["bench", "--suite", "latency", "--quick", "--out", "{dir}/b", "--results", "{dir}"],
         ["sim", "record", "--duration", "0.3", "--out", "{dir}"],
         ["sim", "record", "--duration", "0.3", "--out", "{file}/x.h5"],
     ],
@@ -60,7 +61,7 @@ def test_an_unusable_out_fails_at_once_with_exit_2(args, small_rec, tmp_path, ca
     code = main([a.format(rec=small_rec, file=file, dir=tmp_path) for a in args])
     err = capsys.readouterr().err
     assert code == 2, err
-    assert err.startswith("evservo: error: --out") and "Traceback" not in err
+    assert err.startswith(("evservo: error: --out", "evservo: error: --results")) and "Traceback" not in err
     assert time.perf_counter() - started < 5.0
     assert file.read_text() == "precious\n"
 

@@ -22,6 +22,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from evservo import io
+from evservo.inputs import require_regular_file
 from evservo.io import EVENT_CD
 
 __all__ = [
@@ -216,7 +217,7 @@ def open_source(spec: str, speed: float = 1.0, delta_t_us: int = 1000) -> EventS
         return open_camera(LIVE_KINDS[kind.lower()], serial or None)
     path = Path(spec)
     try:
-        io.require_regular_file(path, "event file")
+        require_regular_file(path, "event file")
     except FileNotFoundError:
         raise FileNotFoundError(
             f"no such event file: {path} (--camera takes prophesee[:SERIAL], dv[:SERIAL] or an event file)"

@@ -1,11 +1,42 @@
 """The event record layout shared by every reader, writer and the tracker: OpenEB's ``EventCD``
-(x u16, y u16, p i16, t i64 µs; 16 bytes with padding before t)."""
+(x u16, y u16, p i16, t i64 µs; 16 bytes with padding before t). The dtype comes from the Rust
+core, where the record is defined once (``evcore::EventCd``), so arrays of it cross into Rust as
+one buffer without a copy."""
 
 import numpy as np
 
-EVENT_CD = np.dtype(
-    {"names": ["x", "y", "p", "t"], "formats": ["<u2", "<u2", "<i2", "<i8"], "offsets": [0, 2, 4, 8], "itemsize": 16}
-)
+from evservo import _evcore
+
+EVENT_CD: np.dtype = _evcore.EVENT_CD
+
+
+def as_event_cd(events: np.ndarray) -> np.ndarray:
+    """``events`` as a 1-D C-contiguous EVENT_CD array: returned as it is when it already is one (no
+    copy); any other structured array with fields x, y, p, t is converted (a copy) where no value
+    changes (see :func:`lossless_column`)."""
+    dtype = getattr(events, "dtype", None)
+    if dtype == EVENT_CD and events.ndim == 1:
+        return np.ascontiguousarray(events)
+    names = getattr(dtype, "names", None) or ()
+    missing = [f for f in EVENT_CD.names if f not in names]
+    if missing or np.ndim(events) != 1:
+        raise ValueError(f"events must be a 1-D structured array with fields x, y, p, t; missing {missing}")
+    out = np.empty(len(events), dtype=EVENT_CD)
+    for name in EVENT_CD.names:
+        out[name] = lossless_column(name, events[name])  # NaN, fractions, out-of-range values refused
+    return out
+
+
+def from_columns(columns: dict[str, np.ndarray]) -> np.ndarray:
+    """An EVENT_CD array from columns ``x``, ``y``, ``p``, ``t`` (µs) of equal length, converted
+    only where no value changes (see :func:`lossless_column`)."""
+    n = {name: len(columns[name]) for name in EVENT_CD.names}
+    if len(set(n.values())) != 1:
+        raise ValueError(f"event columns differ in length: {n}")
+    out = np.empty(n["t"], dtype=EVENT_CD)
+    for name in EVENT_CD.names:
+        out[name] = lossless_column(name, columns[name])
+    return out
 
 
 def lossless_column(name: str, values: np.ndarray) -> np.ndarray:

@@ -31,6 +31,12 @@ Formats, chosen by file extension:
     without it reading raises :class:`DecodeError` naming the codec. Files compressed with any
     filter ``hdf5plugin`` provides (Blosc, Blosc2, Zstd, LZ4, Bitshuffle, ...) read.
 
+ROS 2 bags: a rosbag2 directory or a bare ``.mcap`` file
+    ``event_camera_msgs/EventPacket`` (``evt3``, ``mono``), ``dvs_msgs/EventArray`` or
+    ``prophesee_event_msgs/EventArray`` messages, through :mod:`evservo.bags` (see there for
+    times and geometry). ``topic=`` picks the event topic when there are several;
+    :func:`info` lists the topics. Written as EventPacket ``evt3`` (exact round trip).
+
 Not read: CSV, Prophesee DAT, ES (faery writes these).
 
 Bad input raises ``FileNotFoundError`` (missing file), :class:`DecodeError` (a ``ValueError``;
@@ -40,7 +46,6 @@ corrupt or truncated content) or ``ValueError`` (unsupported extension or argume
 from __future__ import annotations
 
 import os
-import stat
 import zipfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -49,21 +54,14 @@ import h5py
 import hdf5plugin
 import numpy as np
 
-from evservo import aedat4
+from evservo import aedat4, bags
 from evservo._evcore import DecodeError, RawReader
-from evservo.events import lossless_column
+from evservo.events import EVENT_CD, from_columns, lossless_column
+from evservo.inputs import require_regular_file
 from evservo.outputs import atomic_path
 
 __all__ = ["EVENT_CD", "DecodeError", "info", "open_events", "read_events", "write_events"]
 
-EVENT_CD = np.dtype(
-    {
-        "names": ["x", "y", "p", "t"],
-        "formats": ["<u2", "<u2", "<i2", "<i8"],
-        "offsets": [0, 2, 4, 8],
-        "itemsize": 16,
-    }
-)
 
 #: HDF5 filter id of Prophesee's ECF codec used by Metavision HDF5 files.
 ECF_FILTER_ID = 0x8ECF
@@ -94,36 +92,20 @@ _AEDAT_SUFFIX = ".aedat4"
 _SUFFIXES = (".raw", _AEDAT_SUFFIX, ".npz", ".npy", *_H5_SUFFIXES)
 
 
-def _checked_path(path: str | os.PathLike) -> tuple[Path, str]:
+#: What :func:`_checked_path` calls a ROS bag (directory or ``.mcap`` file) in place of a suffix.
+_BAG = "rosbag2"
+
+
+def _checked_path(path: str | os.PathLike, topic: str | None = None) -> tuple[Path, str]:
     p = Path(path)
+    if bags.is_bag(p):
+        return p, _BAG
+    if topic is not None:
+        raise ValueError(f"topic= applies to ROS bags only, not {p}")
     suffix = p.suffix.lower()
     if suffix not in _SUFFIXES:
         raise ValueError(f"unsupported event file extension {suffix!r} for {p} (supported: {', '.join(_SUFFIXES)})")
     return require_regular_file(p, "event file"), suffix
-
-
-def require_regular_file(path: str | os.PathLike, what: str) -> Path:
-    """``path`` if it is a regular file (after symlinks); else ``FileNotFoundError`` when nothing is
-    there and ``ValueError`` naming what is there instead (a directory, a FIFO, a symlink loop, ...)."""
-    p = Path(path)
-    try:
-        mode = p.stat().st_mode
-    except FileNotFoundError:
-        raise FileNotFoundError(f"no such {what}: {p}") from None
-    except OSError as e:  # ELOOP, EACCES, ENOTDIR, ...
-        raise ValueError(f"{what} {p}: {e.strerror or e}") from None
-    if stat.S_ISDIR(mode):
-        raise ValueError(f"{what} {p} is a directory, not a file")
-    if not stat.S_ISREG(mode):
-        raise ValueError(f"{what} {p} is not a regular file (a FIFO, socket or device)")
-    return p
-
-
-def _columns_to_cd(cols: dict) -> np.ndarray:
-    out = np.empty(len(cols["t"]), dtype=EVENT_CD)
-    for name in EVENT_CD.names:
-        out[name] = lossless_column(name, cols[name])
-    return out
 
 
 def _as_cd(events: np.ndarray) -> np.ndarray:
@@ -223,7 +205,7 @@ def _load_h5(p: Path) -> tuple[np.ndarray, int, int, bool, str]:
         with f:
             if "events" in f and isinstance(f["events"], h5py.Group):
                 g = f["events"]
-                events = _columns_to_cd(_h5_columns(p, g))
+                events = from_columns(_h5_columns(p, g))
                 return events, *_stored_geometry(p, g.attrs["width"], g.attrs["height"]), False, "hdf5"
             if "CD/events" in f:
                 ds = f["CD/events"]
@@ -256,26 +238,20 @@ def _load_array(p: Path, suffix: str) -> tuple[np.ndarray, int, int, bool, str]:
 
 def _raw_blocks(p: Path, n: int) -> Iterator[np.ndarray]:
     reader = RawReader(p)
-    while (cols := reader.read_n_events(n)) is not None:
-        yield _columns_to_cd(cols)
+    while (block := reader.read_n_events(n)) is not None:
+        yield block
 
 
 def _raw_time_slices(p: Path, delta_t_us: int) -> Iterator[np.ndarray]:
+    """Time slices cut in Rust: each slice is one array handed over from the decoder, no copies here."""
     reader = RawReader(p)
-    first = reader.read_n_events(1)
+    first = reader.peek_t()
     if first is None:
         return
-    head = _columns_to_cd(first)
-    end = (int(head["t"][0]) // delta_t_us + 1) * delta_t_us
-    while (cols := reader.read_until(end)) is not None:
-        chunk = _columns_to_cd(cols)
-        if head is not None:
-            chunk = np.concatenate([head, chunk], dtype=EVENT_CD)
-            head = None
+    end = (first // delta_t_us + 1) * delta_t_us
+    while (chunk := reader.read_until(end)) is not None:
         yield chunk
         end += delta_t_us
-    if head is not None:
-        yield head
 
 
 def _is_our_h5(p: Path) -> bool:
@@ -293,7 +269,7 @@ def _h5_blocks(p: Path, n: int) -> Iterator[np.ndarray]:
             g = f["events"]
             total = len(g["t"])
             for start in range(0, total, n):
-                yield _columns_to_cd(_h5_columns(p, g, slice(start, start + n)))
+                yield from_columns(_h5_columns(p, g, slice(start, start + n)))
     except DecodeError:
         raise
     except (KeyError, OSError, ValueError, TypeError) as e:
@@ -358,7 +334,7 @@ def _array_time_slices(events: np.ndarray, delta_t_us: int) -> Iterator[np.ndarr
 
 
 def open_events(
-    path: str | os.PathLike, delta_t_us: int | None = None, n_events: int | None = None
+    path: str | os.PathLike, delta_t_us: int | None = None, n_events: int | None = None, topic: str | None = None
 ) -> Iterator[np.ndarray]:
     """Iterate over an event file in EVENT_CD slices, like OpenEB's ``EventsIterator``.
 
@@ -366,7 +342,8 @@ def open_events(
     of that many events, the last one shorter). Time slices lie on a grid of multiples of
     ``delta_t_us`` starting with the one holding the first event; each slice ends before the first
     event at or after its end, in stream order, and slices without events inside the recording
-    are yielded empty. The slices concatenate to :func:`read_events`.
+    are yielded empty. The slices concatenate to :func:`read_events`. ``topic`` picks the event
+    topic of a ROS bag.
     """
     if delta_t_us is not None and n_events is not None:
         raise ValueError("give only one of delta_t_us and n_events")
@@ -377,7 +354,12 @@ def open_events(
         delta_t_us = 10_000 if delta_t_us is None else delta_t_us
         if delta_t_us < 1:
             raise ValueError(f"delta_t_us must be >= 1, got {delta_t_us}")
-    p, suffix = _checked_path(path)
+    p, suffix = _checked_path(path, topic)
+    if suffix == _BAG:
+        blocks = bags.event_blocks(p, topic)[1]
+        if n_events is not None:
+            return _rechunked(blocks, n_events)
+        return _block_time_slices(blocks, delta_t_us)
     if suffix == ".raw":
         if n_events is not None:
             return _raw_blocks(p, n_events)
@@ -398,35 +380,40 @@ def open_events(
     return _array_time_slices(events, delta_t_us)
 
 
-def read_events(path: str | os.PathLike) -> np.ndarray:
-    """All events of a file as one EVENT_CD array, in stream order."""
-    p, suffix = _checked_path(path)
-    if suffix == ".raw":
-        blocks = list(_raw_blocks(p, _RAW_BLOCK_EVENTS))
-        # numpy would otherwise drop EVENT_CD's padding and return a packed 14-byte dtype.
+def read_events(path: str | os.PathLike, topic: str | None = None) -> np.ndarray:
+    """All events of a file as one EVENT_CD array, in stream order (``topic``: see :func:`open_events`)."""
+    p, suffix = _checked_path(path, topic)
+    if suffix == _BAG:
+        blocks = list(bags.event_blocks(p, topic)[1])
         return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
+    if suffix == ".raw":
+        return RawReader(p).read_all()
     if suffix == _AEDAT_SUFFIX:
         blocks = list(aedat4.iter_blocks(p))
         return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
     return _load_array(p, suffix)[0]
 
 
-def info(path: str | os.PathLike) -> dict:
+def info(path: str | os.PathLike, topic: str | None = None) -> dict:
     """Format, sensor size and extent of an event file (RAW and AEDAT4 files are decoded once to count).
 
     Keys: ``format`` ("EVT2", "EVT3", "aedat4", "npz", "npy", "hdf5" or "metavision-hdf5"),
     ``width``, ``height`` (pixels), ``n_events``, ``t_first_us``, ``t_last_us`` (None when empty) and
     ``geometry_inferred`` (True when the size was taken as max+1 of the coordinates).
+    ROS bags (format "rosbag2", decoded once to count) also report the event ``topic`` read,
+    its message ``type`` and ``encoding``, and ``topics`` (every topic's type and message count).
     """
-    p, suffix = _checked_path(path)
+    p, suffix = _checked_path(path, topic)
+    if suffix == _BAG:
+        return _bag_info(p, topic)
     if suffix == ".raw":
         reader = RawReader(p)
         n, t_first, t_last = 0, None, None
-        while (cols := reader.read_n_events(_RAW_BLOCK_EVENTS)) is not None:
-            if len(cols["t"]):
-                t_first = int(cols["t"][0]) if t_first is None else t_first
-                t_last = int(cols["t"][-1])
-                n += len(cols["t"])
+        while (block := reader.read_n_events(_RAW_BLOCK_EVENTS)) is not None:
+            if len(block):
+                t_first = int(block["t"][0]) if t_first is None else t_first
+                t_last = int(block["t"][-1])
+                n += len(block)
         return dict(
             format=reader.format, width=reader.width, height=reader.height, n_events=n,
             t_first_us=t_first, t_last_us=t_last, geometry_inferred=False,
@@ -451,6 +438,21 @@ def info(path: str | os.PathLike) -> dict:
         format=layout, width=width, height=height, n_events=len(events),
         t_first_us=None if empty else int(events["t"][0]), t_last_us=None if empty else int(events["t"][-1]),
         geometry_inferred=inferred,
+    )  # fmt: skip
+
+
+def _bag_info(p: Path, topic: str | None) -> dict:
+    meta, blocks = bags.event_blocks(p, topic)
+    n, t_first, t_last = 0, None, None
+    for cols in blocks:
+        if len(cols["t"]):
+            t_first = int(cols["t"][0]) if t_first is None else t_first
+            t_last = int(cols["t"][-1])
+            n += len(cols["t"])
+    return dict(
+        format=_BAG, width=meta["width"], height=meta["height"], n_events=n, t_first_us=t_first,
+        t_last_us=t_last, geometry_inferred=False, topic=meta["topic"], type=meta["type"],
+        encoding=meta["encoding"], topics=meta["topics"],
     )  # fmt: skip
 
 
@@ -492,20 +494,30 @@ def _h5_info(p: Path) -> dict:
         raise DecodeError(f"{p}: unreadable event HDF5: {e}") from e
 
 
-def write_events(path: str | os.PathLike, events: np.ndarray, width: int, height: int) -> None:
-    """Write events to ``.npz``, ``.npy`` or ``.h5``/``.hdf5`` (our layouts, see the module doc).
+def write_events(
+    path: str | os.PathLike, events: np.ndarray, width: int, height: int, topic: str = bags.DEFAULT_TOPIC
+) -> None:
+    """Write events to ``.npz``, ``.npy`` or ``.h5``/``.hdf5`` (our layouts, see the module doc), or
+    to a ROS 2 bag on ``topic``: a bare ``.mcap`` file, or a new rosbag2 directory when ``path``
+    has no suffix (see :func:`evservo.bags.write`).
 
     Every event must lie on the ``width`` x ``height`` sensor. ``.npy`` does not store the size.
     """
     p = Path(path)
     suffix = p.suffix.lower()
-    if suffix not in (".npz", ".npy", *_H5_SUFFIXES):
-        raise ValueError(f"cannot write {suffix!r} event files (supported: .npz, .npy, .h5, .hdf5)")
+    if suffix not in (".npz", ".npy", *_H5_SUFFIXES, ".mcap", ""):
+        raise ValueError(
+            f"cannot write {suffix!r} event files (supported: .npz, .npy, .h5, .hdf5, .mcap, a rosbag2 directory)"
+        )
     events = _as_cd(np.asarray(events))
     if not (1 <= width <= MAX_SENSOR_SIDE and 1 <= height <= MAX_SENSOR_SIDE):
         raise ValueError(f"sensor size must be in 1..{MAX_SENSOR_SIDE} per side, got {width}x{height}")
     if len(events) and (int(events["x"].max()) >= width or int(events["y"].max()) >= height):
         raise ValueError(f"events reach beyond the {width}x{height} sensor")
+    if suffix in (".mcap", ""):
+        # Written into a temporary directory beside the target, moved into place when complete.
+        bags.write(p, events, width, height, topic)
+        return
     if p.is_dir():
         raise ValueError(f"{p} is a directory; give an event file name")
     # To a temporary file beside it, renamed when complete: an interrupted write keeps the old file.

@@ -79,6 +79,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+#: Most control cycles one run records (preallocated, ~0.4 kB each: 1 h at 500 Hz is ~0.7 GB).
+MAX_CYCLES = 1_800_000
+
 #: The files :func:`write_outputs` writes into the run's directory.
 OUTPUTS = ("summary.json", "log.csv", "motion.png")
 
@@ -130,6 +133,15 @@ class RealLoopConfig:
             raise ValueError(f"settle_s must be finite and >= 0, got {self.settle_s}")
         if self.rate_hz > 2000:
             raise ValueError(f"rate_hz above 2000 Hz is beyond any arm's command rate, got {self.rate_hz}")
+        if self.max_cycles() > MAX_CYCLES:
+            raise ValueError(
+                f"duration {self.duration_s:g} s at {self.rate_hz:g} Hz is {self.max_cycles()} control cycles; the "
+                f"per-cycle record holds at most {MAX_CYCLES} (1 h at 500 Hz): run shorter sessions"
+            )
+
+    def max_cycles(self) -> int:
+        """Control cycles the run may record: servoing plus the longest braking."""
+        return int(np.ceil((self.duration_s + self.max_brake_s) * self.rate_hz)) + 2
 
 
 @dataclass
@@ -264,7 +276,7 @@ def run_real_loop(
         max_jump_m=cfg.max_jump_m, max_jump_rad=cfg.max_jump_rad,
     )  # fmt: skip
     rec = CycleRecord(
-        int(np.ceil((cfg.duration_s + cfg.max_brake_s) * cfg.rate_hz)) + 2,
+        cfg.max_cycles(),
         t_s=(), T_w_c=(4, 4), T_c_o_est=(4, 4), est_t_s=(), v_cmd_w=(6,), v_sent_w=(6,), cycle_s=(), late_s=(),
         est_t_us=((), np.int64),
     )  # fmt: skip

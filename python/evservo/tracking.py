@@ -11,24 +11,15 @@ from __future__ import annotations
 import numpy as np
 
 from evservo import _evcore
-from evservo.events import lossless_column
+from evservo.events import as_event_cd
 from evservo.geometry import as_pose
 from evservo.models import load_object, to_core_mesh
 
-SOLVERS = ("edft+", "edopts", "edft")
-FRONTENDS = ("scarf", "fixed-count", "eros")
+#: The solver and front-end names the core accepts (parsed in Rust only; these lists come from it).
+SOLVERS: tuple[str, ...] = tuple(_evcore.SOLVERS)
+FRONTENDS: tuple[str, ...] = tuple(_evcore.FRONTENDS)
 
 Estimate = _evcore.Estimate
-
-
-def event_columns(events: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Split an EventCD structured array into contiguous x (u16), y (u16), p (i16), t (i64 µs) columns."""
-    names = getattr(getattr(events, "dtype", None), "names", None) or ()
-    missing = [f for f in ("x", "y", "p", "t") if f not in names]
-    if missing:
-        raise ValueError(f"events must be a structured array with fields x, y, p, t; missing {missing}")
-    x, y, p, t = (np.ascontiguousarray(lossless_column(f, events[f])) for f in ("x", "y", "p", "t"))
-    return x, y, p, t
 
 
 def model_point_set(
@@ -52,6 +43,11 @@ class Tracker:
         solver: "edft+" (1 LM step then ``n_search`` search steps), "edopts" (search only), "edft" (LM only).
         frontend: "scarf" (velocity-invariant, default), "fixed-count" or "eros".
         n_points: size of the model point set S*.
+        ingest_core_share: while running, ``push`` thins the stream so that ingest uses at most this
+            share of the caller's core (measured on the fly); None keeps every event.
+        max_ingest_rate: instead, a fixed cap on the events ingested per second of event time.
+
+    ``latest()`` reads ``lost=True`` until the first update has locked onto the events.
     """
 
     def __init__(
@@ -67,27 +63,26 @@ class Tracker:
         tau_px: float = 10.0,
         levels: int = 3,
         seed: int = 0,
+        ingest_core_share: float | None = 0.5,
+        max_ingest_rate: float | None = None,
     ) -> None:
-        if solver not in SOLVERS:
-            raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
-        if frontend not in FRONTENDS:
-            raise ValueError(f"unknown front-end {frontend!r}; choose one of {FRONTENDS}")
         T = as_pose(T_c_o, "T_c_o")
         self.camera = camera
         self.solver = solver
         self.frontend = frontend
         self.points_o = model_point_set(camera, mesh, T, n_points=n_points, seed=seed)
         self._core = _evcore.Tracker(
-            camera, self.points_o, T, solver=solver, frontend=frontend, n_search=n_search, tau_px=tau_px, levels=levels
-        )
+            camera, self.points_o, T, solver=solver, frontend=frontend, n_search=n_search, tau_px=tau_px,
+            levels=levels, ingest_core_share=ingest_core_share, max_ingest_rate=max_ingest_rate,
+        )  # fmt: skip
 
     def update(self, events: np.ndarray) -> Estimate:
         """Synchronous: ingest the batch, run one cycle (1 LM + N search, or N+1 steps), return the estimate."""
-        return self._core.update(*event_columns(events))
+        return self._core.update(as_event_cd(events))
 
     def ingest(self, events: np.ndarray) -> None:
         """Synchronous: ingest a batch without solving."""
-        self._core.ingest(*event_columns(events))
+        self._core.ingest(as_event_cd(events))
 
     def step(self, n: int = 1) -> Estimate:
         """Synchronous: run ``n`` single updates (one LM or one search step each) on the current events."""
@@ -104,12 +99,15 @@ class Tracker:
         self._core.start()
 
     def push(self, events: np.ndarray) -> None:
-        """Queue a batch for the solver thread. Never blocks; if the tracker falls far behind, the oldest
-        queued batches are dropped and counted in ``stats()['events_dropped']``."""
-        self._core.push(*event_columns(events))
+        """Ingest a batch into the running tracker on the calling thread (the GIL is released) and wake
+        the solver, which never waits for it. When the offered rate is more than ingest can take
+        within its share of this core (``ingest_core_share``, or ``max_ingest_rate``), a uniform
+        fraction of each batch is kept, so the pose stays fresh; ``stats()`` counts events offered,
+        ingested and dropped. Raises ``ValueError`` for a bad batch (nothing of it is ingested)."""
+        self._core.push(as_event_cd(events))
 
     def latest(self) -> Estimate:
-        """The newest estimate."""
+        """The newest estimate, without any lock (safe from any thread, also during start/stop)."""
         return self._core.latest()
 
     def stop(self) -> None:
@@ -121,11 +119,19 @@ class Tracker:
         return self._core.running
 
     def reset_pose(self, T_c_o: np.ndarray) -> None:
-        """Re-initialise the pose; the front-end keeps its events."""
+        """Re-initialise the pose (synchronous only); the front-end keeps its events. The estimate
+        reads ``lost`` until the next update confirms the pose."""
         self._core.reset_pose(as_pose(T_c_o, "T_c_o"))
 
-    def stats(self) -> dict:
-        """Step counts and seconds per kind, dropped events, rejected jumps."""
+    def reset_events(self) -> None:
+        """Forget every event and the time line (running or not); the pose stays. Time may then start
+        anew, e.g. after the camera restarted its clock or a batch with corrupt times was refused."""
+        self._core.reset_events()
+
+    def stats(self) -> dict[str, float]:
+        """Live counters: ``lm_steps``, ``search_steps``, ``lm_seconds``, ``search_seconds``,
+        ``events_offered``, ``events_ingested``, ``events_dropped`` (thinned under overload) and
+        ``jumps_rejected``."""
         return self._core.stats()
 
     def projected_points(self) -> np.ndarray:

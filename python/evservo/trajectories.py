@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from evservo.inputs import require_regular_file
+
 KINDS = ("trans", "trans-rot", "circle", "figure8", "stop-go", "reversal")
 CSV_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad")
 
@@ -51,6 +53,8 @@ def make_trajectory(
         raise ValueError(f"unknown trajectory {kind!r}; choose one of {KINDS} or a .csv file")
     if not (np.isfinite(speed_mps) and speed_mps >= 0 and np.isfinite(amplitude_m) and amplitude_m > 0):
         raise ValueError("speed must be >= 0 and amplitude > 0 (finite)")
+    if not (np.isfinite(rot_rate_dps) and rot_rate_dps >= 0):
+        raise ValueError(f"rotation rate must be finite and >= 0 deg/s, got {rot_rate_dps}")
     A = amplitude_m
     w = speed_mps / A  # rad/s so that the peak speed along x is speed_mps
     rot_amp = np.deg2rad(rot_rate_dps) / max(w, 1e-9) if kind == "trans-rot" else 0.0
@@ -87,9 +91,7 @@ def make_trajectory(
 
 def load_csv_trajectory(path: str | Path) -> Trajectory:
     """Read a CSV trajectory (header ``t_s,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad``)."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"trajectory file not found: {path}")
+    path = require_regular_file(path, "trajectory file")
     with path.open(newline="") as fh:
         reader = csv.reader(fh)
         header = [h.strip() for h in next(reader, [])]

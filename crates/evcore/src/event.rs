@@ -1,6 +1,192 @@
-//! Event batches: struct of arrays in the layout of OpenEB's `EventCD` (x u16, y u16, p i16, t i64 µs).
+//! Events: [`EventCd`], one record in the layout of OpenEB's `EventCD` (x u16, y u16, p i16,
+//! t i64 µs; 16 bytes), and [`EventBatch`], the same fields as a struct of arrays. Both are
+//! [`EventRecords`], which is what validation and the tracker's ingest read.
 
 use crate::error::{Error, Result};
+
+/// One change-detection event exactly as OpenEB's `EventCD` lays it out in memory (and as numpy's
+/// structured dtype of the same name): x u16 @0, y u16 @2, p i16 @4, two bytes of padding, t i64 @8.
+/// The padding is a real (zeroed) field so that every byte of a record is initialised and a
+/// slice of records can be handed to Python or written to a file as it is.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct EventCd {
+    /// Sensor column (pixels).
+    pub x: u16,
+    /// Sensor row (pixels).
+    pub y: u16,
+    /// Polarity: 0 OFF, non-zero ON.
+    pub p: i16,
+    pad: u16,
+    /// Time (µs).
+    pub t: i64,
+}
+
+impl EventCd {
+    /// Size of one record in bytes.
+    pub const SIZE: usize = 16;
+    /// (name, numpy format, byte offset) of each field, in record order: the one description of
+    /// the layout that the Python bindings turn into the `EventCD` dtype.
+    pub const FIELDS: [(&'static str, &'static str, usize); 4] = [
+        ("x", "<u2", std::mem::offset_of!(EventCd, x)),
+        ("y", "<u2", std::mem::offset_of!(EventCd, y)),
+        ("p", "<i2", std::mem::offset_of!(EventCd, p)),
+        ("t", "<i8", std::mem::offset_of!(EventCd, t)),
+    ];
+
+    #[inline]
+    pub fn new(x: u16, y: u16, p: i16, t: i64) -> Self {
+        Self { x, y, p, pad: 0, t }
+    }
+}
+
+const _: () = assert!(std::mem::size_of::<EventCd>() == EventCd::SIZE);
+const _: () = assert!(
+    cfg!(target_endian = "little"),
+    "EventCd mirrors a little-endian layout"
+);
+
+/// Read access to a sequence of events, whatever its memory layout.
+pub trait EventRecords {
+    fn n_events(&self) -> usize;
+    /// (x, y) of event `i` (`i < n_events()`).
+    fn xy(&self, i: usize) -> (u16, u16);
+    /// Time of event `i` (µs).
+    fn t_at(&self, i: usize) -> i64;
+    /// Time of the last event, if any.
+    fn last_t(&self) -> Option<i64> {
+        self.n_events().checked_sub(1).map(|i| self.t_at(i))
+    }
+}
+
+impl EventRecords for [EventCd] {
+    #[inline]
+    fn n_events(&self) -> usize {
+        self.len()
+    }
+    #[inline]
+    fn xy(&self, i: usize) -> (u16, u16) {
+        (self[i].x, self[i].y)
+    }
+    #[inline]
+    fn t_at(&self, i: usize) -> i64 {
+        self[i].t
+    }
+}
+
+impl EventRecords for EventBatch {
+    #[inline]
+    fn n_events(&self) -> usize {
+        self.len()
+    }
+    #[inline]
+    fn xy(&self, i: usize) -> (u16, u16) {
+        (self.x[i], self.y[i])
+    }
+    #[inline]
+    fn t_at(&self, i: usize) -> i64 {
+        self.t_us[i]
+    }
+}
+
+/// Where decoded events go: columns ([`EventBatch`]) or records (`Vec<EventCd>`).
+pub trait EventSink {
+    /// Append events `range` of `batch`.
+    fn extend_from_batch(&mut self, batch: &EventBatch, range: std::ops::Range<usize>);
+}
+
+impl EventSink for EventBatch {
+    fn extend_from_batch(&mut self, b: &EventBatch, r: std::ops::Range<usize>) {
+        self.x.extend_from_slice(&b.x[r.clone()]);
+        self.y.extend_from_slice(&b.y[r.clone()]);
+        self.p.extend_from_slice(&b.p[r.clone()]);
+        self.t_us.extend_from_slice(&b.t_us[r]);
+    }
+}
+
+impl EventSink for Vec<EventCd> {
+    fn extend_from_batch(&mut self, b: &EventBatch, r: std::ops::Range<usize>) {
+        let (x, y, p, t) = (
+            &b.x[r.clone()],
+            &b.y[r.clone()],
+            &b.p[r.clone()],
+            &b.t_us[r],
+        );
+        self.reserve(x.len());
+        self.extend(
+            x.iter()
+                .zip(y)
+                .zip(p)
+                .zip(t)
+                .map(|(((&x, &y), &p), &t)| EventCd::new(x, y, p, t)),
+        );
+    }
+}
+
+/// Largest accepted |t| (µs): 2^53 µs is 285 years, so any clock (sensor counter, Unix time in
+/// µs) fits, while a garbage word such as 2^63 − 1 is refused instead of ending the time line.
+pub const MAX_ABS_T_US: i64 = 1 << 53;
+
+/// Largest accepted step forward in time between consecutive events (µs): one hour. A larger
+/// jump is a corrupt stamp, not a pause; a restarted clock needs an explicit reset of the time line.
+pub const MAX_TIME_JUMP_US: i64 = 3_600_000_000;
+
+/// Check that every event lies on a `width`×`height` sensor, that its time is plausible (within
+/// ±[`MAX_ABS_T_US`], at most [`MAX_TIME_JUMP_US`] after the previous event) and that time never
+/// goes backwards, within the batch and relative to `prev_t_us` (the last time already accepted).
+/// Returns the first violation; the batch is then to be rejected whole.
+pub fn validate_events<E: EventRecords + ?Sized>(
+    events: &E,
+    width: u32,
+    height: u32,
+    prev_t_us: Option<i64>,
+) -> Result<()> {
+    // Fast path: accumulate "anything wrong" without branches, look for the culprit only then.
+    let (w, h) = (
+        width.min(u32::from(u16::MAX) + 1),
+        height.min(u32::from(u16::MAX) + 1),
+    );
+    let mut last = prev_t_us.unwrap_or(i64::MIN);
+    let mut bad = false;
+    for i in 0..events.n_events() {
+        let ((x, y), t) = (events.xy(i), events.t_at(i));
+        bad |= (u32::from(x) >= w)
+            | (u32::from(y) >= h)
+            | (t < last)
+            | (t.unsigned_abs() > MAX_ABS_T_US as u64)
+            | (last != i64::MIN && t.saturating_sub(last) > MAX_TIME_JUMP_US);
+        last = t;
+    }
+    if !bad {
+        return Ok(());
+    }
+    let mut last = prev_t_us;
+    for i in 0..events.n_events() {
+        let ((x, y), t) = (events.xy(i), events.t_at(i));
+        let reason = if u32::from(x) >= width || u32::from(y) >= height {
+            format!("({x}, {y}) lies outside the {width}x{height} sensor")
+        } else if t.unsigned_abs() > MAX_ABS_T_US as u64 {
+            format!("time {t} µs is outside ±2^53 µs (a corrupt time stamp)")
+        } else if last.is_some_and(|l| t < l) {
+            format!(
+                "time goes backwards: {t} µs after {} µs (after a clock restart, reset the tracker's events)",
+                last.unwrap_or_default()
+            )
+        } else if last.is_some_and(|l| t - l > MAX_TIME_JUMP_US) {
+            format!(
+                "time jumps forward by {} µs (more than an hour) after {} µs: a corrupt time stamp \
+                 (after a clock restart, reset the tracker's events)",
+                t - last.unwrap_or_default(),
+                last.unwrap_or_default()
+            )
+        } else {
+            last = Some(t);
+            continue;
+        };
+        return Err(Error::InvalidEvent { index: i, reason });
+    }
+    Ok(())
+}
 
 /// A batch of change-detection events, struct of arrays. Coordinates are raw sensor pixels,
 /// `t_us` is in microseconds, `p` is the polarity (0 = OFF, 1 = ON, as Metavision writes it;
@@ -72,28 +258,16 @@ impl EventBatch {
         self.t_us.last().copied()
     }
 
-    /// Check that every event lies on a `width`×`height` sensor and that time never goes
-    /// backwards, within the batch and relative to `prev_t_us` (the last time already accepted).
-    /// Returns the first violation; the batch is then to be rejected whole.
+    /// See [`validate_events`].
     pub fn validate(&self, width: u32, height: u32, prev_t_us: Option<i64>) -> Result<()> {
-        let mut last = prev_t_us.unwrap_or(i64::MIN);
-        for i in 0..self.len() {
-            let (x, y, t) = (self.x[i], self.y[i], self.t_us[i]);
-            if u32::from(x) >= width || u32::from(y) >= height {
-                return Err(Error::InvalidEvent {
-                    index: i,
-                    reason: format!("({x}, {y}) lies outside the {width}x{height} sensor"),
-                });
-            }
-            if t < last {
-                return Err(Error::InvalidEvent {
-                    index: i,
-                    reason: format!("time goes backwards: {t} µs after {last} µs"),
-                });
-            }
-            last = t;
-        }
-        Ok(())
+        validate_events(self, width, height, prev_t_us)
+    }
+
+    /// The events as records, in order.
+    pub fn to_records(&self) -> Vec<EventCd> {
+        let mut out = Vec::new();
+        out.extend_from_batch(self, 0..self.len());
+        out
     }
 }
 
@@ -125,6 +299,37 @@ mod tests {
         assert!(matches!(err, Error::InvalidEvent { index: 1, .. }));
         let err = batch(&[0], &[5]).validate(10, 10, Some(6)).unwrap_err();
         assert!(matches!(err, Error::InvalidEvent { index: 0, .. }));
+    }
+
+    #[test]
+    fn rejects_absurd_times_and_jumps() {
+        let err = batch(&[0, 1], &[5, i64::MAX])
+            .validate(10, 10, None)
+            .unwrap_err();
+        assert!(matches!(err, Error::InvalidEvent { index: 1, .. }), "{err}");
+        assert!(batch(&[0], &[-(1 << 60)]).validate(10, 10, None).is_err());
+        // Unix time in µs is fine; an hour's gap is the most that passes.
+        let now = 1_800_000_000_000_000;
+        assert!(batch(&[0, 1], &[now, now + MAX_TIME_JUMP_US])
+            .validate(10, 10, None)
+            .is_ok());
+        let err = batch(&[0], &[now + MAX_TIME_JUMP_US + 1])
+            .validate(10, 10, Some(now))
+            .unwrap_err();
+        assert!(err.to_string().contains("jumps forward"), "{err}");
+    }
+
+    #[test]
+    fn records_and_columns_validate_alike() {
+        let b = batch(&[0, 9, 12], &[1, 1, 0]);
+        let recs = b.to_records();
+        assert_eq!(recs[1], EventCd::new(9, 3, 1, 1));
+        let cols = b.validate(10, 10, None).unwrap_err().to_string();
+        let rows = validate_events(recs.as_slice(), 10, 10, None)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(cols, rows);
+        assert!(cols.contains("index 2"), "{cols}");
     }
 
     #[test]

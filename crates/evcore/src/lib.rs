@@ -24,7 +24,9 @@ pub mod tracker;
 
 pub use camera::{Camera, UndistortLut};
 pub use error::{Error, Result};
-pub use event::EventBatch;
+pub use event::{EventBatch, EventCd, EventRecords};
 pub use image::Roi;
 pub use se3::Pose;
-pub use surface::{make_surface, EventSurface, FrontEnd};
+pub use surface::{
+    make_surface, split_surface, EventSurface, FrontEnd, SurfaceReader, SurfaceWriter,
+};

@@ -1,10 +1,23 @@
 //! The tracker: events in, poses out.
 //!
-//! [`TrackerCore`] is the synchronous engine (ingest a batch, run steps); it is what deterministic
-//! simulation and tests drive. [`ThreadedTracker`] moves a core into its own thread: batches come in
-//! through a lock-free bounded queue whose producer never blocks (when the solver falls behind, the
-//! oldest queued batch is dropped and counted), and the newest estimate goes out through a seqlock,
-//! so neither side ever waits on a lock held by the other.
+//! A tracker has two halves that share only lock-free state:
+//! - [`Ingest`] validates each batch, maps it through the undistortion table and inserts it into
+//!   the front-end's writer. It runs on the caller's thread (the producer's core), so a fast
+//!   producer pays for its own events and the solver never waits for them.
+//! - [`Solver`] reads the front-end's active set, rebuilds the distance field and runs one LM or
+//!   search step per update.
+//!
+//! Between them: the front-end (SCARF's count image is single-writer/many-reader without locks),
+//! and [`TrackerOutput`]: the newest estimate in a seqlock, the newest ingested event time and the
+//! live counters. [`TrackerCore`] holds both halves for synchronous use (deterministic simulation,
+//! tests); [`ThreadedTracker`] keeps the ingest half with the caller and moves the solver into its
+//! own thread.
+//!
+//! Overload: a live producer can offer more events per second than one core can insert. The
+//! threaded ingest then keeps a uniform fraction of each batch (every k-th event in stream order,
+//! so uniform in time), sized so that ingest uses at most a set share of the caller's core.
+//! SCARF's active set does not depend on the event rate, so a thinned stream draws the same edges,
+//! and the pose stays fresh instead of falling behind a backlog.
 //!
 //! One *update* = one published pose = one LM or one search step on a field rebuilt from the
 //! current active set. LM steps build the full pyramid; search steps only need the full-resolution
@@ -12,7 +25,7 @@
 
 use crate::camera::{Camera, UndistortLut};
 use crate::error::{ensure, Error, Result};
-use crate::event::EventBatch;
+use crate::event::{validate_events, EventRecords};
 use crate::field::{DistanceField, FieldParams};
 use crate::image::Roi;
 use crate::se3::Pose;
@@ -20,12 +33,11 @@ use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32};
 use crate::solve::lm::{lm_pyramid, LmParams};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
-use crate::surface::{make_surface, EventSurface, FrontEnd};
-use crossbeam_queue::ArrayQueue;
+use crate::surface::{split_surface, FrontEnd, SurfaceReader, SurfaceWriter};
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
-use std::sync::atomic::{fence, AtomicBool, AtomicU64, Ordering};
-use std::sync::Arc;
-use std::thread::{self, JoinHandle};
+use std::sync::atomic::{fence, AtomicBool, AtomicI64, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::thread::{self, JoinHandle, Thread};
 use std::time::{Duration, Instant};
 
 #[derive(Debug, Clone, PartialEq)]
@@ -48,6 +60,8 @@ pub struct TrackerConfig {
     pub lost_inlier_fraction: f32,
     /// An update that moves the pose further than this (metres or radians) is rejected as a jump.
     pub max_jump: f64,
+    /// How much the threaded tracker may thin an overloading stream; see [`IngestLimit`].
+    pub ingest_limit: IngestLimit,
 }
 
 impl Default for TrackerConfig {
@@ -63,6 +77,41 @@ impl Default for TrackerConfig {
             inlier_px: 2.0,
             lost_inlier_fraction: 0.15,
             max_jump: 0.25,
+            ingest_limit: IngestLimit::default(),
+        }
+    }
+}
+
+/// When the threaded tracker's ingest starts keeping only a fraction of the events pushed
+/// (synchronous ingest always keeps every event, so simulation stays deterministic).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum IngestLimit {
+    /// Keep every event whatever it costs the caller.
+    Off,
+    /// Keep at most as many events as ingest can insert using this share of the caller's core
+    /// (0..=1], measured on the fly (so a busier machine thins more).
+    CoreShare(f64),
+    /// Keep at most this many events per second of event time (a fixed, reproducible cap).
+    EventsPerSecond(f64),
+}
+
+impl Default for IngestLimit {
+    /// Half of the producer's core: the rest is left for the producer itself (decoding, Python).
+    fn default() -> Self {
+        Self::CoreShare(0.5)
+    }
+}
+
+impl IngestLimit {
+    fn check(&self) -> Result<()> {
+        match *self {
+            Self::Off => Ok(()),
+            Self::CoreShare(f) => ensure(f.is_finite() && f > 0.0 && f <= 1.0, || {
+                format!("the ingest core share {f} must be in (0, 1]")
+            }),
+            Self::EventsPerSecond(r) => ensure(r.is_finite() && r > 0.0, || {
+                format!("the ingest rate limit {r} ev/s must be positive")
+            }),
         }
     }
 }
@@ -72,7 +121,7 @@ impl Default for TrackerConfig {
 pub struct Estimate {
     /// T_c_o: the object in the camera optical frame.
     pub pose: Pose,
-    /// Time of the newest event the field was built from (µs; 0 before any event).
+    /// Time of the newest event ingested before the field was built (µs; 0 before any event).
     pub t_us: i64,
     /// Number of updates so far (0 = the initial pose).
     pub seq: u64,
@@ -80,309 +129,26 @@ pub struct Estimate {
     /// Mean distance-field value over the model points (full-res pixels).
     pub cost: f32,
     pub inlier_fraction: f32,
-    /// Events ingested so far.
+    /// Events ingested into the front-end so far (after any thinning).
     pub n_events: u64,
+    /// True while the object is not tracked, including before the first update (not yet locked).
     pub lost: bool,
 }
 
-/// Per-kind step counts and time spent (wall clock, seconds).
+/// Per-kind step counts and time spent (wall clock, seconds), and what happened to the events.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct TrackerStats {
     pub lm_steps: u64,
     pub search_steps: u64,
     pub lm_seconds: f64,
     pub search_seconds: f64,
+    /// Events in accepted batches.
+    pub events_offered: u64,
+    /// Events inserted into the front-end.
+    pub events_ingested: u64,
+    /// Events thinned out under overload (offered − ingested).
     pub events_dropped: u64,
     pub jumps_rejected: u64,
-}
-
-pub struct TrackerCore {
-    rect: Camera,
-    lut: UndistortLut,
-    surface: Box<dyn EventSurface>,
-    field: DistanceField,
-    points: Vec<[f32; 3]>,
-    pivot_o: Vector3<f64>,
-    pins: Vec<Pinhole>,
-    schedule: Schedule,
-    config: TrackerConfig,
-    last: Estimate,
-    last_t_us: Option<i64>,
-    stats: TrackerStats,
-    mask: Vec<u8>,
-    pixels: Vec<u32>,
-    polarity: Vec<i16>,
-}
-
-fn check_pose(pose: &Pose) -> Result<()> {
-    let ok = pose.translation.vector.iter().all(|v| v.is_finite())
-        && pose.rotation.coords.iter().all(|v| v.is_finite());
-    ensure(ok, || "pose contains NaN or infinite values".into())?;
-    ensure(pose.translation.z > 0.0, || {
-        format!(
-            "object must be in front of the camera (z = {} m)",
-            pose.translation.z
-        )
-    })
-}
-
-impl TrackerCore {
-    /// `camera` is the sensor's (raw, distorted); `points_o` is S* in the object frame (metres);
-    /// `t_c_o` the initial pose of the object in the camera.
-    pub fn new(
-        camera: &Camera,
-        points_o: Vec<[f32; 3]>,
-        t_c_o: Pose,
-        config: TrackerConfig,
-    ) -> Result<Self> {
-        ensure(points_o.len() >= 6, || {
-            format!(
-                "the point set needs at least 6 points, got {}",
-                points_o.len()
-            )
-        })?;
-        ensure(points_o.iter().flatten().all(|v| v.is_finite()), || {
-            "the point set contains NaN".into()
-        })?;
-        check_pose(&t_c_o)?;
-        let camera = camera.checked()?;
-        let rect = camera.rectified();
-        let surface = make_surface(&config.frontend, camera.width, camera.height)?;
-        let field = DistanceField::new(config.field)?;
-        let pins = (0..config.field.levels)
-            .map(|l| Pinhole::at_level(&rect, l))
-            .collect();
-        let schedule = Schedule::new(config.solver, config.n_search)?;
-        let pivot_o = centroid(&points_o);
-        let mut core = Self {
-            rect,
-            lut: UndistortLut::new(&camera),
-            surface,
-            field,
-            points: points_o,
-            pivot_o,
-            pins,
-            schedule,
-            config,
-            last: Estimate {
-                pose: t_c_o,
-                t_us: 0,
-                seq: 0,
-                step: StepKind::Search,
-                cost: 0.0,
-                inlier_fraction: 0.0,
-                n_events: 0,
-                lost: false,
-            },
-            last_t_us: None,
-            stats: TrackerStats::default(),
-            mask: Vec::new(),
-            pixels: Vec::new(),
-            polarity: Vec::new(),
-        };
-        ensure(core.roi(0.0).is_some(), || {
-            "the object does not project into the image at the initial pose".into()
-        })?;
-        core.last.cost = core.field_max();
-        Ok(core)
-    }
-
-    fn field_max(&self) -> f32 {
-        self.config.field.tau_px
-    }
-
-    pub fn config(&self) -> &TrackerConfig {
-        &self.config
-    }
-
-    pub fn camera(&self) -> &Camera {
-        &self.rect
-    }
-
-    pub fn points(&self) -> &[[f32; 3]] {
-        &self.points
-    }
-
-    pub fn latest(&self) -> Estimate {
-        self.last
-    }
-
-    pub fn stats(&self) -> TrackerStats {
-        self.stats
-    }
-
-    pub fn surface(&self) -> &dyn EventSurface {
-        self.surface.as_ref()
-    }
-
-    /// Steps per cycle: 1 LM + N search for EDFT⁺, N + 1 steps of the single solver otherwise.
-    pub fn cycle_len(&self) -> usize {
-        self.schedule.cycle_len()
-    }
-
-    /// Validate a batch (sensor bounds, time never going backwards) without ingesting it.
-    pub fn validate(&self, batch: &EventBatch) -> Result<()> {
-        batch.validate(self.rect.width, self.rect.height, self.last_t_us)
-    }
-
-    /// Validate and ingest a batch into the front-end. A rejected batch leaves the tracker unchanged.
-    pub fn ingest(&mut self, batch: &EventBatch) -> Result<()> {
-        self.validate(batch)?;
-        self.ingest_unchecked(batch);
-        Ok(())
-    }
-
-    /// Ingest a batch that has already been validated against this sensor and time line.
-    pub(crate) fn ingest_unchecked(&mut self, batch: &EventBatch) {
-        self.pixels.clear();
-        self.polarity.clear();
-        for i in 0..batch.len() {
-            let idx = self.lut.map(batch.x[i], batch.y[i]);
-            if idx != UndistortLut::OUTSIDE {
-                self.pixels.push(idx);
-                self.polarity.push(batch.p[i]);
-            }
-        }
-        self.surface.ingest(&self.pixels, &self.polarity);
-        self.last.n_events += batch.len() as u64;
-        if let Some(t) = batch.last_t_us() {
-            self.last_t_us = Some(t);
-        }
-    }
-
-    /// Region of the rectified image around the model projected at the current pose.
-    fn roi(&self, margin_px: f64) -> Option<Roi> {
-        let rig = Rigid32::from_pose(&self.last.pose);
-        let pin = self.pins[0];
-        let uv = self
-            .points
-            .iter()
-            .filter_map(|&x| pin.project(rig.apply(x)))
-            .map(|(u, v)| (f64::from(u), f64::from(v)));
-        Roi::around(uv, margin_px, self.rect.width, self.rect.height)
-    }
-
-    /// Set the pose (e.g. re-initialisation); the front-end keeps its events.
-    pub fn reset_pose(&mut self, t_c_o: Pose) -> Result<()> {
-        check_pose(&t_c_o)?;
-        self.last.pose = t_c_o;
-        self.last.lost = false;
-        self.schedule.restart();
-        Ok(())
-    }
-
-    /// One update: rebuild the field from the current active set and run the next scheduled step.
-    pub fn step(&mut self) -> Estimate {
-        let kind = self.schedule.next_step();
-        let started = Instant::now();
-        let pose = self.last.pose;
-        let margin = match kind {
-            StepKind::Lm => self.config.roi_margin_px,
-            StepKind::Search => self.config.search_roi_margin_px,
-        };
-        let Some(roi) = self.roi(margin) else {
-            self.last.lost = true;
-            self.last.seq += 1;
-            return self.last;
-        };
-        let n_levels = if kind == StepKind::Lm {
-            self.config.field.levels
-        } else {
-            1
-        };
-        self.mask.resize(roi.area(), 0);
-        self.surface.fill_mask(roi, &mut self.mask);
-        let built = self.field.build(&self.mask, roi, n_levels, false);
-        let new_pose = match (built, kind) {
-            (Err(_), _) => pose,
-            (Ok(()), StepKind::Lm) => {
-                let levels: Vec<_> = (0..n_levels)
-                    .rev()
-                    .map(|l| (self.field.level(l), self.pins[l as usize]))
-                    .collect();
-                lm_pyramid(&levels, pose, &self.points, &self.pivot_o, &self.config.lm).pose
-            }
-            (Ok(()), StepKind::Search) => {
-                let deltas = axis_steps(&self.pins[0], &pose, &self.points, &self.pivot_o, 8);
-                search_step(
-                    self.field.level(0),
-                    &self.pins[0],
-                    &pose,
-                    &self.points,
-                    &self.pivot_o,
-                    &deltas,
-                )
-                .pose
-            }
-        };
-        let (dt, dr) = crate::se3::distance(&pose, &new_pose);
-        let accepted = if check_pose(&new_pose).is_ok()
-            && dt <= self.config.max_jump
-            && dr <= self.config.max_jump
-        {
-            new_pose
-        } else {
-            self.stats.jumps_rejected += 1;
-            pose
-        };
-        let quality = cost_stats(
-            self.field.level(0),
-            &self.pins[0],
-            &Rigid32::from_pose(&accepted),
-            &self.points,
-            self.config.inlier_px,
-        );
-        self.last = Estimate {
-            pose: accepted,
-            t_us: self.last_t_us.unwrap_or(0),
-            seq: self.last.seq + 1,
-            step: kind,
-            cost: quality.mean,
-            inlier_fraction: quality.inlier_fraction,
-            n_events: self.last.n_events,
-            lost: quality.inlier_fraction < self.config.lost_inlier_fraction,
-        };
-        let secs = started.elapsed().as_secs_f64();
-        match kind {
-            StepKind::Lm => {
-                self.stats.lm_steps += 1;
-                self.stats.lm_seconds += secs;
-            }
-            StepKind::Search => {
-                self.stats.search_steps += 1;
-                self.stats.search_seconds += secs;
-            }
-        }
-        self.last
-    }
-
-    /// Synchronous update: ingest the batch, run one full cycle, return the last estimate.
-    pub fn update(&mut self, batch: &EventBatch) -> Result<Estimate> {
-        self.ingest(batch)?;
-        for _ in 0..self.cycle_len() {
-            self.step();
-        }
-        Ok(self.last)
-    }
-
-    /// The model points projected at the current pose (rectified pixels); for overlays.
-    pub fn projected_points(&self) -> Vec<(f32, f32)> {
-        let rig = Rigid32::from_pose(&self.last.pose);
-        self.points
-            .iter()
-            .filter_map(|&x| self.pins[0].project(rig.apply(x)))
-            .collect()
-    }
-
-    /// The full-resolution field as last built, with its region (for overlays and diagnostics).
-    pub fn field_level0(&self) -> &crate::field::FieldLevel {
-        self.field.level(0)
-    }
-
-    /// The model's pivot (centroid of S*) in the camera frame at the current pose.
-    pub fn pivot_c(&self) -> Vector3<f64> {
-        (self.last.pose * Point3::from(self.pivot_o)).coords
-    }
 }
 
 /// A lock-free single-writer cell holding the newest estimate (a seqlock over 16 words).
@@ -471,141 +237,940 @@ impl EstimateCell {
     }
 }
 
-struct Shared {
-    queue: ArrayQueue<EventBatch>,
+/// What both halves of a tracker publish, readable from any thread without locks: the newest
+/// estimate, the newest ingested event time and live counters.
+pub struct TrackerOutput {
     latest: EstimateCell,
-    stop: AtomicBool,
-    dropped_events: AtomicU64,
+    /// Newest event time of the last accepted batch (µs); `i64::MIN` before any.
+    newest_t_us: AtomicI64,
+    /// Accepted non-empty batches; the solver compares it to see whether anything new arrived.
+    batches: AtomicU64,
+    offered: AtomicU64,
+    ingested: AtomicU64,
+    lm_steps: AtomicU64,
+    search_steps: AtomicU64,
+    lm_ns: AtomicU64,
+    search_ns: AtomicU64,
+    jumps_rejected: AtomicU64,
 }
 
-/// A tracker core running in its own thread.
-pub struct ThreadedTracker {
-    shared: Arc<Shared>,
-    handle: Option<JoinHandle<TrackerCore>>,
-    width: u32,
-    height: u32,
-    last_pushed_t_us: Option<i64>,
-}
-
-/// Batches that may wait in the queue; beyond this the oldest is dropped (and counted).
-pub const QUEUE_CAPACITY: usize = 1024;
-
-impl ThreadedTracker {
-    /// Move `core` into a new thread and start the solver loop.
-    pub fn start(core: TrackerCore) -> Result<Self> {
-        let shared = Arc::new(Shared {
-            queue: ArrayQueue::new(QUEUE_CAPACITY),
-            latest: EstimateCell::new(&core.latest()),
-            stop: AtomicBool::new(false),
-            dropped_events: AtomicU64::new(0),
-        });
-        let (width, height, last_pushed_t_us) = (core.rect.width, core.rect.height, core.last_t_us);
-        let worker = Arc::clone(&shared);
-        let handle = thread::Builder::new()
-            .name("evservo-tracker".into())
-            .spawn(move || run(core, &worker))
-            .map_err(|e| Error::Tracking(format!("could not start the tracker thread: {e}")))?;
-        Ok(Self {
-            shared,
-            handle: Some(handle),
-            width,
-            height,
-            last_pushed_t_us,
-        })
+impl TrackerOutput {
+    fn new(initial: &Estimate) -> Self {
+        Self {
+            latest: EstimateCell::new(initial),
+            newest_t_us: AtomicI64::new(i64::MIN),
+            batches: AtomicU64::new(0),
+            offered: AtomicU64::new(0),
+            ingested: AtomicU64::new(0),
+            lm_steps: AtomicU64::new(0),
+            search_steps: AtomicU64::new(0),
+            lm_ns: AtomicU64::new(0),
+            search_ns: AtomicU64::new(0),
+            jumps_rejected: AtomicU64::new(0),
+        }
     }
 
-    /// Hand a batch to the tracker thread. Never blocks: validates, enqueues, and if the queue is
-    /// full drops the oldest waiting batch.
-    pub fn push(&mut self, batch: EventBatch) -> Result<()> {
-        batch.validate(self.width, self.height, self.last_pushed_t_us)?;
-        if batch.is_empty() {
+    /// The newest published estimate (lock-free; a few ns).
+    pub fn latest(&self) -> Estimate {
+        self.latest.read()
+    }
+
+    /// The counters as of now (live while a solver thread runs).
+    pub fn stats(&self) -> TrackerStats {
+        let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        let (offered, ingested) = (get(&self.offered), get(&self.ingested));
+        TrackerStats {
+            lm_steps: get(&self.lm_steps),
+            search_steps: get(&self.search_steps),
+            lm_seconds: get(&self.lm_ns) as f64 * 1e-9,
+            search_seconds: get(&self.search_ns) as f64 * 1e-9,
+            events_offered: offered,
+            events_ingested: ingested,
+            events_dropped: offered.saturating_sub(ingested),
+            jumps_rejected: get(&self.jumps_rejected),
+        }
+    }
+
+    fn newest_t_us(&self) -> Option<i64> {
+        let t = self.newest_t_us.load(Ordering::Acquire);
+        (t != i64::MIN).then_some(t)
+    }
+}
+
+/// Decides which fraction of a batch to keep under overload (see the module doc).
+#[derive(Debug, Clone)]
+struct Thinning {
+    limit: IngestLimit,
+    /// Offered rate (events per µs of event time), smoothed over ≥ 1 ms windows; 0 = unknown.
+    rate_ev_per_us: f64,
+    window_events: u64,
+    window_t0: Option<i64>,
+    /// Measured costs (ns) of validating one offered event and inserting one kept event; 0 = unknown.
+    validate_ns: f64,
+    insert_ns: f64,
+    /// Fractional credit carried between events and batches, so the kept events are evenly spaced.
+    credit: f64,
+}
+
+/// Event time over which the offered rate is measured (µs).
+const RATE_WINDOW_US: i64 = 1000;
+/// Batches smaller than this are not timed (the clock's own cost would dominate).
+const MIN_TIMED_EVENTS: usize = 256;
+/// Never keep less than this fraction: the tracker must still see every edge.
+const MIN_KEEP: f64 = 1.0 / 256.0;
+
+impl Thinning {
+    fn new(limit: IngestLimit) -> Self {
+        Self {
+            limit,
+            rate_ev_per_us: 0.0,
+            window_events: 0,
+            window_t0: None,
+            validate_ns: 0.0,
+            insert_ns: 0.0,
+            credit: 0.0,
+        }
+    }
+
+    fn reset(&mut self) {
+        *self = Self::new(self.limit);
+    }
+
+    /// Account for an accepted batch of `n` events ending at `last_t` (after `prev_t`, the end of
+    /// the previous batch, if any) and return the fraction of it to keep.
+    fn offer(&mut self, n: usize, first_t: i64, last_t: i64, prev_t: Option<i64>) -> f64 {
+        let t0 = *self.window_t0.get_or_insert(prev_t.unwrap_or(first_t));
+        self.window_events += n as u64;
+        let span = last_t - t0;
+        if span >= RATE_WINDOW_US {
+            let rate = self.window_events as f64 / span as f64;
+            self.rate_ev_per_us = if self.rate_ev_per_us > 0.0 {
+                0.5 * (self.rate_ev_per_us + rate)
+            } else {
+                rate
+            };
+            self.window_events = 0;
+            self.window_t0 = Some(last_t);
+        }
+        let rate = if self.rate_ev_per_us > 0.0 {
+            self.rate_ev_per_us
+        } else if span > 0 {
+            self.window_events as f64 / span as f64
+        } else {
+            return 1.0;
+        };
+        let keep = match self.limit {
+            IngestLimit::Off => 1.0,
+            IngestLimit::EventsPerSecond(cap) => cap * 1e-6 / rate,
+            IngestLimit::CoreShare(share) => {
+                if self.insert_ns <= 0.0 {
+                    return 1.0;
+                }
+                // Per µs of event time: rate·(validate + keep·insert) ns ≤ share·1000 ns.
+                (share * 1e3 / rate - self.validate_ns) / self.insert_ns
+            }
+        };
+        keep.clamp(MIN_KEEP, 1.0)
+    }
+
+    /// Fold a timed batch into the cost estimates.
+    fn record_costs(&mut self, offered: usize, kept: usize, validate: Duration, insert: Duration) {
+        let ema = |old: f64, new: f64| {
+            if old > 0.0 {
+                0.8 * old + 0.2 * new
+            } else {
+                new
+            }
+        };
+        if offered >= MIN_TIMED_EVENTS {
+            self.validate_ns = ema(
+                self.validate_ns,
+                validate.as_nanos() as f64 / offered as f64,
+            );
+        }
+        if kept >= MIN_TIMED_EVENTS {
+            self.insert_ns = ema(self.insert_ns, insert.as_nanos() as f64 / kept as f64);
+        }
+    }
+}
+
+/// The ingest half: validation, undistortion, optional thinning and the front-end's writer.
+pub struct Ingest {
+    width: u32,
+    height: u32,
+    lut: UndistortLut,
+    writer: Box<dyn SurfaceWriter>,
+    last_t_us: Option<i64>,
+    thinning: Thinning,
+    pixels: Vec<u32>,
+    out: Arc<TrackerOutput>,
+}
+
+impl Ingest {
+    /// Validate `events` and insert them (all of them when `thin` is false, else the fraction the
+    /// ingest limit allows). A rejected batch changes nothing.
+    pub fn push<E: EventRecords + ?Sized>(&mut self, events: &E, thin: bool) -> Result<()> {
+        let started = Instant::now();
+        validate_events(events, self.width, self.height, self.last_t_us)?;
+        let n = events.n_events();
+        if n == 0 {
             return Ok(());
         }
-        self.last_pushed_t_us = batch.last_t_us().or(self.last_pushed_t_us);
-        if let Some(old) = self.shared.queue.force_push(batch) {
-            self.shared
-                .dropped_events
-                .fetch_add(old.len() as u64, Ordering::Relaxed);
+        let (first_t, last_t) = (events.t_at(0), events.t_at(n - 1));
+        let validated = Instant::now();
+        let keep = if thin {
+            self.thinning.offer(n, first_t, last_t, self.last_t_us)
+        } else {
+            1.0
+        };
+        self.pixels.clear();
+        if keep >= 1.0 {
+            for i in 0..n {
+                let (x, y) = events.xy(i);
+                self.pixels.push(self.lut.map(x, y));
+            }
+        } else {
+            let mut credit = self.thinning.credit;
+            for i in 0..n {
+                credit += keep;
+                if credit >= 1.0 {
+                    credit -= 1.0;
+                    let (x, y) = events.xy(i);
+                    self.pixels.push(self.lut.map(x, y));
+                }
+            }
+            self.thinning.credit = credit;
         }
-        if let Some(h) = &self.handle {
-            h.thread().unpark();
+        let kept = self.pixels.len();
+        // The writer skips OUTSIDE (≥ width·height) itself.
+        self.writer.ingest(&self.pixels);
+        if thin {
+            self.thinning
+                .record_costs(n, kept, validated - started, validated.elapsed());
         }
+        self.last_t_us = Some(last_t);
+        self.out.offered.fetch_add(n as u64, Ordering::Relaxed);
+        self.out.ingested.fetch_add(kept as u64, Ordering::Relaxed);
+        // Release: a solver that sees this time (or batch count) also sees the events in its mask.
+        self.out.newest_t_us.store(last_t, Ordering::Release);
+        self.out.batches.fetch_add(1, Ordering::Release);
         Ok(())
     }
 
+    /// Forget every event and the time line (e.g. after the camera restarted its clock).
+    pub fn reset(&mut self) {
+        self.writer.reset();
+        self.last_t_us = None;
+        self.thinning.reset();
+        self.out.newest_t_us.store(i64::MIN, Ordering::Release);
+    }
+}
+
+/// The solver half: everything an update needs, reading the front-end through a shared handle.
+pub struct Solver {
+    sensor: Camera,
+    rect: Camera,
+    reader: Arc<dyn SurfaceReader>,
+    field: DistanceField,
+    points: Vec<[f32; 3]>,
+    pivot_o: Vector3<f64>,
+    pins: Vec<Pinhole>,
+    schedule: Schedule,
+    config: TrackerConfig,
+    last: Estimate,
+    mask: Vec<u8>,
+    out: Arc<TrackerOutput>,
+}
+
+fn check_pose(pose: &Pose) -> Result<()> {
+    let ok = pose.translation.vector.iter().all(|v| v.is_finite())
+        && pose.rotation.coords.iter().all(|v| v.is_finite());
+    ensure(ok, || "pose contains NaN or infinite values".into())?;
+    ensure(pose.translation.z > 0.0, || {
+        format!(
+            "object must be in front of the camera (z = {} m)",
+            pose.translation.z
+        )
+    })
+}
+
+impl Solver {
+    /// `sensor` has been checked; `out` is the output shared with the ingest half.
+    fn new(
+        sensor: Camera,
+        points_o: Vec<[f32; 3]>,
+        t_c_o: Pose,
+        config: TrackerConfig,
+        reader: Arc<dyn SurfaceReader>,
+        out: Arc<TrackerOutput>,
+    ) -> Result<Self> {
+        let rect = sensor.rectified();
+        let field = DistanceField::new(config.field)?;
+        let pins = (0..config.field.levels)
+            .map(|l| Pinhole::at_level(&rect, l))
+            .collect();
+        let schedule = Schedule::new(config.solver, config.n_search)?;
+        let pivot_o = centroid(&points_o);
+        let solver = Self {
+            sensor,
+            rect,
+            reader,
+            field,
+            points: points_o,
+            pivot_o,
+            pins,
+            schedule,
+            last: Estimate {
+                pose: t_c_o,
+                t_us: 0,
+                seq: 0,
+                step: StepKind::Search,
+                cost: config.field.tau_px,
+                inlier_fraction: 0.0,
+                n_events: 0,
+                lost: true,
+            },
+            config,
+            mask: Vec::new(),
+            out,
+        };
+        solver.publish();
+        Ok(solver)
+    }
+
+    fn publish(&self) {
+        self.out.latest.publish(&self.last);
+    }
+
+    /// Region of the rectified image around the model projected at the current pose.
+    fn roi(&self, margin_px: f64) -> Option<Roi> {
+        let rig = Rigid32::from_pose(&self.last.pose);
+        let pin = self.pins[0];
+        let uv = self
+            .points
+            .iter()
+            .filter_map(|&x| pin.project(rig.apply(x)))
+            .map(|(u, v)| (f64::from(u), f64::from(v)));
+        Roi::around(uv, margin_px, self.rect.width, self.rect.height)
+    }
+
+    fn reset_pose(&mut self, t_c_o: Pose) -> Result<()> {
+        check_pose(&t_c_o)?;
+        self.last.pose = t_c_o;
+        // Not locked until an update confirms the new pose against the events.
+        self.last.lost = true;
+        self.schedule.restart();
+        self.publish();
+        Ok(())
+    }
+
+    /// One update: rebuild the field from the current active set and run the next scheduled step.
+    fn step(&mut self) -> Estimate {
+        let kind = self.schedule.next_step();
+        let started = Instant::now();
+        let pose = self.last.pose;
+        // Read before the mask: every event up to this time is in what the mask shows.
+        let t_us = self.out.newest_t_us().unwrap_or(self.last.t_us);
+        let n_events = self.out.ingested.load(Ordering::Relaxed);
+        let margin = match kind {
+            StepKind::Lm => self.config.roi_margin_px,
+            StepKind::Search => self.config.search_roi_margin_px,
+        };
+        let Some(roi) = self.roi(margin) else {
+            self.last.lost = true;
+            self.last.seq += 1;
+            self.publish();
+            return self.last;
+        };
+        let n_levels = if kind == StepKind::Lm {
+            self.config.field.levels
+        } else {
+            1
+        };
+        self.mask.resize(roi.area(), 0);
+        self.reader.fill_mask(roi, &mut self.mask);
+        let built = self.field.build(&self.mask, roi, n_levels);
+        let new_pose = match (built, kind) {
+            (Err(_), _) => pose,
+            (Ok(()), StepKind::Lm) => {
+                let levels: Vec<_> = (0..n_levels)
+                    .rev()
+                    .map(|l| (self.field.level(l), self.pins[l as usize]))
+                    .collect();
+                lm_pyramid(&levels, pose, &self.points, &self.pivot_o, &self.config.lm).pose
+            }
+            (Ok(()), StepKind::Search) => {
+                let deltas = axis_steps(&self.pins[0], &pose, &self.points, &self.pivot_o, 8);
+                search_step(
+                    self.field.level(0),
+                    &self.pins[0],
+                    &pose,
+                    &self.points,
+                    &self.pivot_o,
+                    &deltas,
+                )
+                .pose
+            }
+        };
+        let (dt, dr) = crate::se3::distance(&pose, &new_pose);
+        let accepted = if check_pose(&new_pose).is_ok()
+            && dt <= self.config.max_jump
+            && dr <= self.config.max_jump
+        {
+            new_pose
+        } else {
+            self.out.jumps_rejected.fetch_add(1, Ordering::Relaxed);
+            pose
+        };
+        let quality = cost_stats(
+            self.field.level(0),
+            &self.pins[0],
+            &Rigid32::from_pose(&accepted),
+            &self.points,
+            self.config.inlier_px,
+        );
+        self.last = Estimate {
+            pose: accepted,
+            t_us,
+            seq: self.last.seq + 1,
+            step: kind,
+            cost: quality.mean,
+            inlier_fraction: quality.inlier_fraction,
+            n_events,
+            lost: quality.inlier_fraction < self.config.lost_inlier_fraction,
+        };
+        self.publish();
+        let ns = started.elapsed().as_nanos() as u64;
+        let (count, time) = match kind {
+            StepKind::Lm => (&self.out.lm_steps, &self.out.lm_ns),
+            StepKind::Search => (&self.out.search_steps, &self.out.search_ns),
+        };
+        count.fetch_add(1, Ordering::Relaxed);
+        time.fetch_add(ns, Ordering::Relaxed);
+        self.last
+    }
+}
+
+/// Both halves in one place, driven synchronously: ingest a batch, run steps.
+pub struct TrackerCore {
+    ingest: Ingest,
+    solver: Solver,
+}
+
+impl TrackerCore {
+    /// `camera` is the sensor's (raw, distorted); `points_o` is S* in the object frame (metres);
+    /// `t_c_o` the initial pose of the object in the camera.
+    pub fn new(
+        camera: &Camera,
+        points_o: Vec<[f32; 3]>,
+        t_c_o: Pose,
+        config: TrackerConfig,
+    ) -> Result<Self> {
+        ensure(points_o.len() >= 6, || {
+            format!(
+                "the point set needs at least 6 points, got {}",
+                points_o.len()
+            )
+        })?;
+        ensure(points_o.iter().flatten().all(|v| v.is_finite()), || {
+            "the point set contains NaN".into()
+        })?;
+        check_pose(&t_c_o)?;
+        config.ingest_limit.check()?;
+        let camera = camera.checked()?;
+        let (writer, reader) = split_surface(&config.frontend, camera.width, camera.height)?;
+        let placeholder = Estimate {
+            pose: t_c_o,
+            t_us: 0,
+            seq: 0,
+            step: StepKind::Search,
+            cost: 0.0,
+            inlier_fraction: 0.0,
+            n_events: 0,
+            lost: true,
+        };
+        let out = Arc::new(TrackerOutput::new(&placeholder));
+        let ingest = Ingest {
+            width: camera.width,
+            height: camera.height,
+            lut: UndistortLut::new(&camera),
+            writer,
+            last_t_us: None,
+            thinning: Thinning::new(config.ingest_limit),
+            pixels: Vec::new(),
+            out: Arc::clone(&out),
+        };
+        let solver = Solver::new(camera, points_o, t_c_o, config, reader, out)?;
+        ensure(solver.roi(0.0).is_some(), || {
+            "the object does not project into the image at the initial pose".into()
+        })?;
+        Ok(Self { ingest, solver })
+    }
+
+    pub fn config(&self) -> &TrackerConfig {
+        &self.solver.config
+    }
+
+    /// The rectified camera the solver works in.
+    pub fn camera(&self) -> &Camera {
+        &self.solver.rect
+    }
+
+    pub fn points(&self) -> &[[f32; 3]] {
+        &self.solver.points
+    }
+
     pub fn latest(&self) -> Estimate {
-        self.shared.latest.read()
+        self.solver.last
     }
 
-    pub fn dropped_events(&self) -> u64 {
-        self.shared.dropped_events.load(Ordering::Relaxed)
+    pub fn stats(&self) -> TrackerStats {
+        self.solver.out.stats()
     }
 
+    /// The output both halves publish to; stays valid (and live) when the solver moves to a thread.
+    pub fn output(&self) -> Arc<TrackerOutput> {
+        Arc::clone(&self.solver.out)
+    }
+
+    /// The front-end's active set for `roi` of the rectified image (see [`crate::EventSurface::fill_mask`]).
+    pub fn fill_mask(&self, roi: Roi, out: &mut [u8]) {
+        self.solver.reader.fill_mask(roi, out);
+    }
+
+    /// Steps per cycle: 1 LM + N search for EDFT⁺, N + 1 steps of the single solver otherwise.
+    pub fn cycle_len(&self) -> usize {
+        self.solver.schedule.cycle_len()
+    }
+
+    /// Validate and ingest every event of a batch into the front-end (no thinning). A rejected
+    /// batch leaves the tracker unchanged.
+    pub fn ingest<E: EventRecords + ?Sized>(&mut self, events: &E) -> Result<()> {
+        self.ingest.push(events, false)
+    }
+
+    /// Forget every event and the time line; the pose stays. After this, time may start anew
+    /// (e.g. a camera that restarted its clock, or a batch of corrupt time stamps).
+    pub fn reset_events(&mut self) {
+        self.ingest.reset();
+    }
+
+    /// Set the pose (e.g. re-initialisation); the front-end keeps its events. The estimate reads
+    /// lost until the next update.
+    pub fn reset_pose(&mut self, t_c_o: Pose) -> Result<()> {
+        self.solver.reset_pose(t_c_o)
+    }
+
+    /// One update: rebuild the field from the current active set and run the next scheduled step.
+    pub fn step(&mut self) -> Estimate {
+        self.solver.step()
+    }
+
+    /// Synchronous update: ingest the batch, run one full cycle, return the last estimate.
+    pub fn update<E: EventRecords + ?Sized>(&mut self, events: &E) -> Result<Estimate> {
+        self.ingest(events)?;
+        for _ in 0..self.cycle_len() {
+            self.step();
+        }
+        Ok(self.solver.last)
+    }
+
+    /// The model points projected at the current pose (rectified pixels); for overlays.
+    pub fn projected_points(&self) -> Vec<(f32, f32)> {
+        let s = &self.solver;
+        let rig = Rigid32::from_pose(&s.last.pose);
+        s.points
+            .iter()
+            .filter_map(|&x| s.pins[0].project(rig.apply(x)))
+            .collect()
+    }
+
+    /// The full-resolution field as last built, with its region (for overlays and diagnostics).
+    pub fn field_level0(&self) -> &crate::field::FieldLevel {
+        self.solver.field.level(0)
+    }
+
+    /// The model's pivot (centroid of S*) in the camera frame at the current pose.
+    pub fn pivot_c(&self) -> Vector3<f64> {
+        (self.solver.last.pose * Point3::from(self.solver.pivot_o)).coords
+    }
+}
+
+/// Why [`ThreadedTracker::start`] failed, with the core handed back unchanged.
+pub struct StartFailed {
+    pub core: Box<TrackerCore>,
+    pub error: Error,
+}
+
+/// A tracker whose solver runs in its own thread while the owner ingests on its own thread.
+pub struct ThreadedTracker {
+    ingest: Ingest,
+    out: Arc<TrackerOutput>,
+    stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<Solver>>,
+    thread: Thread,
+    /// The process that started the thread: after `fork()` a child has the memory but not the thread.
+    pid: u32,
+    /// What a replacement solver needs if the thread is gone (fork) or died (panic).
+    rebuild: (Camera, Vec<[f32; 3]>, TrackerConfig),
+}
+
+impl ThreadedTracker {
+    /// Move the solver of `core` into a new thread. On failure (e.g. no memory for a stack) the
+    /// core comes back untouched.
+    pub fn start(core: TrackerCore) -> std::result::Result<Self, StartFailed> {
+        Self::start_with(core, thread::Builder::new())
+    }
+
+    fn start_with(
+        core: TrackerCore,
+        builder: thread::Builder,
+    ) -> std::result::Result<Self, StartFailed> {
+        let TrackerCore { ingest, solver } = core;
+        let rebuild = (solver.sensor, solver.points.clone(), solver.config.clone());
+        let out = Arc::clone(&solver.out);
+        let stop = Arc::new(AtomicBool::new(false));
+        // The solver waits in a slot the thread takes it from, so that a failed spawn (which
+        // drops the closure) does not take the solver with it.
+        let slot = Arc::new(Mutex::new(Some(solver)));
+        // Taken here, not in the thread: a batch pushed before the thread gets going must count as new.
+        let idle_at_start = out.stats().events_ingested == 0;
+        let batches_at_start = out.batches.load(Ordering::Acquire);
+        let spawned = {
+            let (slot, stop) = (Arc::clone(&slot), Arc::clone(&stop));
+            builder.name("evservo-tracker".into()).spawn(move || {
+                let solver = slot
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .take()
+                    .expect("the solver is handed over exactly once");
+                run(solver, &stop, batches_at_start, idle_at_start)
+            })
+        };
+        match spawned {
+            Ok(handle) => Ok(Self {
+                ingest,
+                out,
+                stop,
+                thread: handle.thread().clone(),
+                handle: Some(handle),
+                pid: std::process::id(),
+                rebuild,
+            }),
+            Err(e) => {
+                let solver = slot
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .take()
+                    .expect("a thread that was never created cannot have taken the solver");
+                Err(StartFailed {
+                    core: Box::new(TrackerCore { ingest, solver }),
+                    error: Error::Tracking(format!("could not start the tracker thread: {e}")),
+                })
+            }
+        }
+    }
+
+    /// True in a process forked from the one that started the thread (which does not exist here).
+    fn forked(&self) -> bool {
+        std::process::id() != self.pid
+    }
+
+    /// Validate and ingest a batch on the caller's thread, thinned under overload, then wake the
+    /// solver. Never waits for the solver.
+    pub fn push<E: EventRecords + ?Sized>(&mut self, events: &E) -> Result<()> {
+        if self.forked() {
+            return Err(Error::Tracking(
+                "the tracker thread was started before fork() and does not exist in this process: \
+                 call stop() and start() to run a new one here"
+                    .into(),
+            ));
+        }
+        if !self.is_running() {
+            return Err(Error::Tracking(
+                "the tracker thread has ended unexpectedly: call stop() to recover the tracker"
+                    .into(),
+            ));
+        }
+        self.ingest.push(events, true)?;
+        self.thread.unpark();
+        Ok(())
+    }
+
+    /// Forget every event and the time line (see [`TrackerCore::reset_events`]).
+    pub fn reset_events(&mut self) {
+        self.ingest.reset();
+    }
+
+    pub fn latest(&self) -> Estimate {
+        self.out.latest()
+    }
+
+    pub fn stats(&self) -> TrackerStats {
+        self.out.stats()
+    }
+
+    pub fn output(&self) -> Arc<TrackerOutput> {
+        Arc::clone(&self.out)
+    }
+
+    /// True while the solver thread runs in this process.
     pub fn is_running(&self) -> bool {
-        self.handle.as_ref().is_some_and(|h| !h.is_finished())
+        !self.forked() && self.handle.as_ref().is_some_and(|h| !h.is_finished())
     }
 
-    /// Stop the thread and get the core back (with its stats).
-    pub fn stop(mut self) -> Result<TrackerCore> {
-        self.stop_inner()
+    /// Stop the thread and get the core back. Where the thread cannot be joined (a forked child)
+    /// or has died, a new solver is built at the last published pose; the front-end keeps its
+    /// events either way.
+    pub fn stop(mut self) -> TrackerCore {
+        let solver = self.stop_thread();
+        let ingest = self.take_ingest();
+        let solver = solver.unwrap_or_else(|| {
+            let (camera, points, config) = self.rebuild.clone();
+            let last = self.out.latest();
+            let mut s = Solver::new(
+                camera,
+                points,
+                last.pose,
+                config,
+                ingest.writer.reader(),
+                Arc::clone(&self.out),
+            )
+            .expect("these parameters built a solver before");
+            s.last = Estimate { lost: true, ..last };
+            s.publish();
+            s
+        });
+        TrackerCore { ingest, solver }
     }
 
-    fn stop_inner(&mut self) -> Result<TrackerCore> {
-        self.shared.stop.store(true, Ordering::Release);
-        let handle = self
-            .handle
-            .take()
-            .ok_or_else(|| Error::Tracking("tracker thread already stopped".into()))?;
-        handle.thread().unpark();
-        let mut core = handle
-            .join()
-            .map_err(|_| Error::Tracking("the tracker thread panicked".into()))?;
-        core.stats.events_dropped += self.shared.dropped_events.load(Ordering::Relaxed);
-        Ok(core)
+    /// Ask the thread to stop and join it; None if there is no thread to join here.
+    fn stop_thread(&mut self) -> Option<Solver> {
+        let handle = self.handle.take()?;
+        if self.forked() {
+            // Joining a thread of another process is undefined; its memory here is just leaked.
+            std::mem::forget(handle);
+            return None;
+        }
+        self.stop.store(true, Ordering::Release);
+        self.thread.unpark();
+        handle.join().ok()
+    }
+
+    fn take_ingest(&mut self) -> Ingest {
+        // `stop` consumes self, and Drop only needs the thread: swap in an inert ingest.
+        let inert = Ingest {
+            width: 0,
+            height: 0,
+            lut: UndistortLut {
+                width: 0,
+                height: 0,
+                index: Vec::new(),
+            },
+            writer: Box::new(NoWriter),
+            last_t_us: None,
+            thinning: Thinning::new(IngestLimit::Off),
+            pixels: Vec::new(),
+            out: Arc::clone(&self.out),
+        };
+        std::mem::replace(&mut self.ingest, inert)
+    }
+}
+
+/// A writer with nothing behind it, for the ingest left in a stopped [`ThreadedTracker`].
+struct NoWriter;
+
+impl SurfaceWriter for NoWriter {
+    fn ingest(&mut self, _pixels: &[u32]) {}
+    fn reset(&mut self) {}
+    fn reader(&self) -> Arc<dyn SurfaceReader> {
+        Arc::new(NoReader)
+    }
+}
+
+struct NoReader;
+
+impl SurfaceReader for NoReader {
+    fn fill_mask(&self, _roi: Roi, out: &mut [u8]) {
+        out.fill(0);
     }
 }
 
 impl Drop for ThreadedTracker {
     fn drop(&mut self) {
-        if self.handle.is_some() {
-            let _ = self.stop_inner();
-        }
+        self.stop_thread();
     }
 }
 
-fn run(mut core: TrackerCore, shared: &Shared) -> TrackerCore {
+fn run(mut solver: Solver, stop: &AtomicBool, mut seen: u64, idle_at_start: bool) -> Solver {
     // After a full cycle without new events the field cannot change, so the solver rests until
     // the next push instead of spinning.
-    let mut steps_without_events = 0;
-    while !shared.stop.load(Ordering::Acquire) {
-        // Only what is queued now: a producer faster than ingest must not starve the solver.
-        // Anything beyond that waits for the next step, or is dropped at the queue if it keeps
-        // coming faster than it can be ingested.
-        let mut got = false;
-        for _ in 0..shared.queue.len() {
-            let Some(batch) = shared.queue.pop() else {
-                break;
-            };
-            core.ingest_unchecked(&batch);
-            got = true;
-        }
-        if got {
+    let cycle = solver.schedule.cycle_len();
+    let mut steps_without_events = if idle_at_start { cycle } else { 0 };
+    while !stop.load(Ordering::Acquire) {
+        let batches = solver.out.batches.load(Ordering::Acquire);
+        if batches != seen {
+            seen = batches;
             steps_without_events = 0;
         }
-        if steps_without_events >= core.cycle_len() {
+        if steps_without_events >= cycle {
             thread::park_timeout(Duration::from_millis(5));
             continue;
         }
-        let estimate = core.step();
-        shared.latest.publish(&estimate);
+        solver.step();
         steps_without_events += 1;
     }
-    core
+    solver
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::event::EventCd;
+
+    /// The outline of a 0.12 m square in its own plane, 0.6 m in front of the IMX636, and events on
+    /// every pixel of that outline (raw sensor pixels) at times `t0..`.
+    fn square() -> (Camera, Vec<[f32; 3]>, Pose) {
+        let pts = (0..400)
+            .map(|i| {
+                let s = (i % 100) as f32 / 100.0 * 0.12 - 0.06;
+                match i / 100 {
+                    0 => [s, -0.06, 0.0],
+                    1 => [s, 0.06, 0.0],
+                    2 => [-0.06, s, 0.0],
+                    _ => [0.06, s, 0.0],
+                }
+            })
+            .collect();
+        let pose = Pose::from_parts(Translation3::new(0.0, 0.0, 0.6), UnitQuaternion::identity());
+        (Camera::imx636(), pts, pose)
+    }
+
+    fn outline_events(
+        cam: &Camera,
+        pts: &[[f32; 3]],
+        pose: &Pose,
+        t0: i64,
+        n: usize,
+    ) -> Vec<EventCd> {
+        (0..n)
+            .map(|i| {
+                let p = pts[i % pts.len()];
+                let pc = pose * Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                let (u, v) = cam.project(&pc.coords).expect("in view");
+                EventCd::new(u.round() as u16, v.round() as u16, 1, t0 + i as i64 / 10)
+            })
+            .collect()
+    }
+
+    fn core(limit: IngestLimit) -> (TrackerCore, Vec<[f32; 3]>, Pose) {
+        let (cam, pts, pose) = square();
+        let config = TrackerConfig {
+            ingest_limit: limit,
+            ..TrackerConfig::default()
+        };
+        (
+            TrackerCore::new(&cam, pts.clone(), pose, config).unwrap(),
+            pts,
+            pose,
+        )
+    }
+
+    #[test]
+    fn not_locked_before_the_first_update_then_locked() {
+        let (mut core, pts, pose) = core(IngestLimit::Off);
+        let first = core.output().latest();
+        assert!(first.lost && first.seq == 0 && first.inlier_fraction == 0.0);
+        let ev = outline_events(core.camera(), &pts, &pose, 0, 4000);
+        let est = core.update(ev.as_slice()).unwrap();
+        assert!(!est.lost, "{est:?}");
+        assert!(est.inlier_fraction > 0.8, "{est:?}");
+        assert_eq!(core.output().latest(), est);
+        assert_eq!(est.t_us, ev.last().unwrap().t);
+        core.reset_pose(pose).unwrap();
+        assert!(core.latest().lost);
+    }
+
+    #[test]
+    fn absurd_time_is_refused_and_the_time_line_can_restart() {
+        let (mut core, pts, pose) = core(IngestLimit::Off);
+        let cam = *core.camera();
+        let mut ev = outline_events(&cam, &pts, &pose, 1_000, 100);
+        ev[50].t = i64::MAX;
+        assert!(core.ingest(ev.as_slice()).is_err());
+        assert_eq!(
+            core.stats().events_offered,
+            0,
+            "a rejected batch changes nothing"
+        );
+        core.ingest(outline_events(&cam, &pts, &pose, 5_000, 100).as_slice())
+            .unwrap();
+        // A clock that restarted is refused until the time line is reset; the pose survives.
+        let early = outline_events(&cam, &pts, &pose, 0, 100);
+        assert!(core.ingest(early.as_slice()).is_err());
+        core.reset_events();
+        core.ingest(early.as_slice()).unwrap();
+        assert_eq!(core.stats().events_ingested, 200);
+    }
+
+    #[test]
+    fn threaded_ingest_counts_live_and_thins_to_the_cap() {
+        // 1000 events per 1 ms of event time = 1 Mev/s offered against a cap of 0.25 Mev/s.
+        let (core, pts, pose) = core(IngestLimit::EventsPerSecond(250_000.0));
+        let cam = *core.camera();
+        let mut tr = ThreadedTracker::start(core).ok().expect("thread");
+        for k in 0..40 {
+            tr.push(
+                outline_events(&cam, &pts, &pose, k * 1000, 10_000)[..10_000]
+                    .iter()
+                    .step_by(10)
+                    .copied()
+                    .collect::<Vec<_>>()
+                    .as_slice(),
+            )
+            .unwrap();
+        }
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while tr.stats().lm_steps == 0 && Instant::now() < deadline {
+            thread::sleep(Duration::from_millis(1));
+        }
+        let live = tr.stats();
+        assert!(live.lm_steps > 0, "step counters are live while running");
+        assert_eq!(live.events_offered, 40_000);
+        assert_eq!(
+            live.events_offered,
+            live.events_ingested + live.events_dropped
+        );
+        // The first window is taken whole (no rate known yet); after it, a quarter is kept.
+        let kept = live.events_ingested as f64;
+        assert!((9_500.0..=12_000.0).contains(&kept), "{live:?}");
+        // The solver reaches the newest pushed event by itself.
+        while tr.latest().t_us != 39_999 && Instant::now() < deadline {
+            thread::sleep(Duration::from_millis(1));
+        }
+        assert_eq!(tr.latest().t_us, 39_999);
+        let core = tr.stop();
+        assert_eq!(core.stats().events_ingested, live.events_ingested);
+    }
+
+    #[test]
+    fn a_failed_spawn_hands_the_core_back() {
+        let (core, pts, pose) = core(IngestLimit::Off);
+        let cam = *core.camera();
+        let failed =
+            ThreadedTracker::start_with(core, thread::Builder::new().stack_size(usize::MAX / 2))
+                .err()
+                .expect("no thread can get that stack");
+        assert!(failed.error.to_string().contains("could not start"));
+        let mut core = *failed.core;
+        core.update(outline_events(&cam, &pts, &pose, 0, 1000).as_slice())
+            .unwrap();
+        let tr = ThreadedTracker::start(core)
+            .ok()
+            .expect("a normal start works");
+        assert!(tr.is_running());
+        tr.stop();
+    }
 
     #[test]
     fn estimate_cell_round_trips_and_survives_concurrent_readers() {

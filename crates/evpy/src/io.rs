@@ -1,12 +1,13 @@
 //! `evservo._evcore.RawReader`: Prophesee RAW (EVT 2.0/3.0) files, decoded with the GIL released.
 
 use crate::errors::to_py;
+use crate::events::{to_array, PyEventCd};
 use evcore::io::RawReader;
-use evcore::EventBatch;
-use numpy::IntoPyArray;
+use numpy::PyArray1;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
 use std::fs::File;
+
+type Events<'py> = Bound<'py, PyArray1<PyEventCd>>;
 
 #[pyclass(name = "RawReader", module = "evservo._evcore")]
 pub struct PyRawReader {
@@ -48,38 +49,48 @@ impl PyRawReader {
         self.inner.header().fields.clone()
     }
 
-    /// The next `n` events (fewer at the end) as a dict of numpy columns x (u16), y (u16),
-    /// p (i16), t (i64 µs); None once the file is exhausted.
-    fn read_n_events<'py>(
-        &mut self,
-        py: Python<'py>,
-        n: usize,
-    ) -> PyResult<Option<Bound<'py, PyDict>>> {
+    /// The next `n` events (fewer at the end) as an EVENT_CD array; None once the file is
+    /// exhausted.
+    fn read_n_events<'py>(&mut self, py: Python<'py>, n: usize) -> PyResult<Option<Events<'py>>> {
         let reader = &mut self.inner;
-        let (more, batch) = py
+        let (more, out) = py
             .detach(|| {
-                let mut out = EventBatch::default();
+                let mut out = Vec::new();
                 reader.read_n_events(n, &mut out).map(|more| (more, out))
             })
             .map_err(to_py)?;
-        more.then(|| columns(py, batch)).transpose()
+        Ok(more.then(|| to_array(py, out)))
     }
 
-    /// The events before the first one at or after `t_us`, as read_n_events; None once the file
-    /// is exhausted. An empty time slice inside the file gives empty columns, not None.
-    fn read_until<'py>(
-        &mut self,
-        py: Python<'py>,
-        t_us: i64,
-    ) -> PyResult<Option<Bound<'py, PyDict>>> {
+    /// The events before the first one at or after `t_us` (in stream order), as read_n_events;
+    /// None once the file is exhausted. An empty time slice inside the file gives an empty array.
+    fn read_until<'py>(&mut self, py: Python<'py>, t_us: i64) -> PyResult<Option<Events<'py>>> {
         let reader = &mut self.inner;
-        let (more, batch) = py
+        let (more, out) = py
             .detach(|| {
-                let mut out = EventBatch::default();
+                let mut out = Vec::new();
                 reader.read_until_t(t_us, &mut out).map(|more| (more, out))
             })
             .map_err(to_py)?;
-        more.then(|| columns(py, batch)).transpose()
+        Ok(more.then(|| to_array(py, out)))
+    }
+
+    /// Every remaining event as one EVENT_CD array (empty at the end of the file).
+    fn read_all<'py>(&mut self, py: Python<'py>) -> PyResult<Events<'py>> {
+        let reader = &mut self.inner;
+        let out = py
+            .detach(|| {
+                let mut out = Vec::new();
+                reader.read_all(&mut out).map(|_| out)
+            })
+            .map_err(to_py)?;
+        Ok(to_array(py, out))
+    }
+
+    /// Time of the next event (µs) without consuming it; None at the end of the file.
+    fn peek_t(&mut self, py: Python<'_>) -> PyResult<Option<i64>> {
+        let reader = &mut self.inner;
+        py.detach(|| reader.peek_t()).map_err(to_py)
     }
 
     fn __repr__(&self) -> String {
@@ -90,15 +101,6 @@ impl PyRawReader {
             self.inner.height()
         )
     }
-}
-
-fn columns(py: Python<'_>, b: EventBatch) -> PyResult<Bound<'_, PyDict>> {
-    let d = PyDict::new(py);
-    d.set_item("x", b.x.into_pyarray(py))?;
-    d.set_item("y", b.y.into_pyarray(py))?;
-    d.set_item("p", b.p.into_pyarray(py))?;
-    d.set_item("t", b.t_us.into_pyarray(py))?;
-    Ok(d)
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

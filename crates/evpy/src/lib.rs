@@ -5,9 +5,12 @@ use pyo3::prelude::*;
 
 mod camera;
 mod errors;
+mod events;
+mod evt3;
 mod field;
 mod io;
 mod model;
+mod pose;
 mod sim;
 mod simcam;
 mod tracker;
@@ -16,6 +19,7 @@ mod tracker;
 fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("DecodeError", m.py().get_type::<errors::DecodeError>())?;
+    events::register(m)?;
     camera::register(m)?;
     field::register(m)?;
     tracker::register(m)?;
@@ -23,5 +27,6 @@ fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     simcam::register(m)?;
     model::register(m)?;
     io::register(m)?;
+    evt3::register(m)?;
     Ok(())
 }

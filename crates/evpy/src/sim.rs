@@ -6,48 +6,19 @@ use evcore::{EventBatch, Roi};
 use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::sync::PyOnceLock;
 use pyo3::types::PyDict;
 use std::borrow::Cow;
 
-/// Bytes per EventCD record: x u16 @0, y u16 @2, p i16 @4, 2 bytes padding, t i64 @8.
-const EVENT_CD_ITEMSIZE: usize = 16;
-
-/// Metavision's `EventCD` dtype, built once per interpreter.
-pub(crate) fn event_cd_dtype(py: Python<'_>) -> PyResult<&Bound<'_, PyAny>> {
-    static DTYPE: PyOnceLock<Py<PyAny>> = PyOnceLock::new();
-    let dtype = DTYPE.get_or_try_init(py, || -> PyResult<Py<PyAny>> {
-        let spec = PyDict::new(py);
-        spec.set_item("names", ["x", "y", "p", "t"])?;
-        spec.set_item("formats", ["<u2", "<u2", "<i2", "<i8"])?;
-        spec.set_item("offsets", [0, 2, 4, 8])?;
-        spec.set_item("itemsize", EVENT_CD_ITEMSIZE)?;
-        Ok(py
-            .import("numpy")?
-            .getattr("dtype")?
-            .call1((spec,))?
-            .unbind())
-    })?;
-    Ok(dtype.bind(py))
+/// A batch as EventCD records (padding zeroed, so output bytes are deterministic too).
+pub(crate) fn pack_event_cd(ev: &EventBatch) -> Vec<evcore::EventCd> {
+    ev.to_records()
 }
 
-/// Pack a batch as little-endian EventCD records (padding zeroed, so output bytes are
-/// deterministic too).
-pub(crate) fn pack_event_cd(ev: &EventBatch) -> Vec<u8> {
-    let mut bytes = vec![0u8; ev.len() * EVENT_CD_ITEMSIZE];
-    for (k, rec) in bytes.chunks_exact_mut(EVENT_CD_ITEMSIZE).enumerate() {
-        rec[0..2].copy_from_slice(&ev.x[k].to_le_bytes());
-        rec[2..4].copy_from_slice(&ev.y[k].to_le_bytes());
-        rec[4..6].copy_from_slice(&ev.p[k].to_le_bytes());
-        rec[8..16].copy_from_slice(&ev.t_us[k].to_le_bytes());
-    }
-    bytes
-}
-
-pub(crate) fn to_event_cd<'py>(py: Python<'py>, bytes: Vec<u8>) -> PyResult<Bound<'py, PyAny>> {
-    bytes
-        .into_pyarray(py)
-        .call_method1("view", (event_cd_dtype(py)?,))
+pub(crate) fn to_event_cd(
+    py: Python<'_>,
+    records: Vec<evcore::EventCd>,
+) -> PyResult<Bound<'_, PyAny>> {
+    Ok(crate::events::to_array(py, records).into_any())
 }
 
 /// A frame as a contiguous row-major slice, checked against the expected (height, width);

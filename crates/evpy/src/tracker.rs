@@ -2,15 +2,19 @@
 
 use crate::camera::PyCamera;
 use crate::errors::to_py;
+use crate::events::{records, EventArray};
+use crate::pose::pose_arg;
 use evcore::field::FieldParams;
-use evcore::se3::{pose_from_matrix, pose_to_matrix};
+use evcore::se3::pose_to_matrix;
 use evcore::solve::{LmParams, SolverMode, StepKind};
 use evcore::surface::FrontEnd;
-use evcore::tracker::{Estimate, ThreadedTracker, TrackerConfig, TrackerCore};
-use evcore::EventBatch;
-use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use evcore::tracker::{
+    Estimate, IngestLimit, ThreadedTracker, TrackerConfig, TrackerCore, TrackerOutput,
+};
+use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use std::sync::{Arc, Mutex};
 
 /// One pose estimate. `T_c_o` is the object in the camera optical frame (4×4, metres).
 #[pyclass(name = "Estimate", module = "evservo._evcore", frozen)]
@@ -79,57 +83,36 @@ fn matrix_to_py<'py>(py: Python<'py>, m: &[[f64; 4]; 4]) -> Bound<'py, PyArray2<
     numpy::ndarray::Array2::from_shape_fn((4, 4), |(i, j)| m[i][j]).into_pyarray(py)
 }
 
-pub fn matrix_from_py(m: &PyReadonlyArray2<'_, f64>) -> PyResult<evcore::Pose> {
-    let a = m.as_array();
-    if a.shape() != [4, 4] {
-        return Err(PyValueError::new_err(format!(
-            "a pose must be a 4x4 matrix, got shape {:?}",
-            a.shape()
-        )));
-    }
-    let arr: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| a[(i, j)]));
-    pose_from_matrix(&arr).map_err(to_py)
-}
-
 /// A field image and the (x0, y0) of its region in the rectified image.
 type FieldWithOrigin<'py> = (Bound<'py, PyArray2<f32>>, (u32, u32));
 
 enum State {
     Sync(Box<TrackerCore>),
-    Threaded(ThreadedTracker),
-    /// Only while moving between the two.
+    Threaded(Box<ThreadedTracker>),
+    /// Only inside `start`/`stop`, under the lock, while the core moves; never seen by a caller.
     Moving,
 }
 
-/// The tracker. Synchronous use: `update(x, y, p, t)`; threaded use: `start()`, `push(...)`,
+/// The tracker. Synchronous use: `update(events)`; threaded use: `start()`, `push(events)`,
 /// `latest()`, `stop()`.
-#[pyclass(name = "Tracker", module = "evservo._evcore")]
+///
+/// Frozen, so no call ever fails on a borrow: `latest()` and `stats()` read the output the solver
+/// publishes to without any lock; everything else takes the state lock with the GIL released, so
+/// calls from several threads wait for each other (briefly) instead of raising.
+#[pyclass(name = "Tracker", module = "evservo._evcore", frozen)]
 pub struct PyTracker {
-    state: State,
-}
-
-fn batch_from_columns(
-    x: PyReadonlyArray1<'_, u16>,
-    y: PyReadonlyArray1<'_, u16>,
-    p: PyReadonlyArray1<'_, i16>,
-    t: PyReadonlyArray1<'_, i64>,
-) -> PyResult<EventBatch> {
-    EventBatch::from_columns(
-        x.as_array().to_vec(),
-        y.as_array().to_vec(),
-        p.as_array().to_vec(),
-        t.as_array().to_vec(),
-    )
-    .map_err(to_py)
+    output: Arc<TrackerOutput>,
+    state: Mutex<State>,
 }
 
 #[pymethods]
 impl PyTracker {
     /// Tracker(camera, points_o (N,3) metres in the object frame, T_c_o (4,4), solver="edft+",
-    /// frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0)
+    /// frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0,
+    /// ingest_core_share=0.5, max_ingest_rate=None)
     #[new]
-    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0))]
-    #[allow(non_snake_case)]
+    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None))]
+    #[allow(non_snake_case, clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         camera: &PyCamera,
@@ -142,8 +125,10 @@ impl PyTracker {
         levels: u32,
         lm_iterations: u32,
         roi_margin_px: f64,
+        ingest_core_share: Option<f64>,
+        max_ingest_rate: Option<f64>,
     ) -> PyResult<Self> {
-        let pose = matrix_from_py(&T_c_o)?;
+        let pose = pose_arg(&T_c_o)?;
         let pts = points_o.as_array();
         if pts.ncols() != 3 {
             return Err(PyValueError::new_err(format!(
@@ -156,6 +141,11 @@ impl PyTracker {
             .into_iter()
             .map(|r| [r[0] as f32, r[1] as f32, r[2] as f32])
             .collect();
+        let ingest_limit = match (max_ingest_rate, ingest_core_share) {
+            (Some(rate), _) => IngestLimit::EventsPerSecond(rate),
+            (None, Some(share)) => IngestLimit::CoreShare(share),
+            (None, None) => IngestLimit::Off,
+        };
         let config = TrackerConfig {
             solver: SolverMode::parse(solver).map_err(to_py)?,
             n_search,
@@ -166,6 +156,7 @@ impl PyTracker {
                 ..LmParams::default()
             },
             roi_margin_px,
+            ingest_limit,
             ..TrackerConfig::default()
         };
         let cam = camera.inner;
@@ -173,157 +164,148 @@ impl PyTracker {
             .detach(move || TrackerCore::new(&cam, points, pose, config))
             .map_err(to_py)?;
         Ok(Self {
-            state: State::Sync(Box::new(core)),
+            output: core.output(),
+            state: Mutex::new(State::Sync(Box::new(core))),
         })
     }
 
-    /// Ingest one batch and run one cycle (1 LM + N search for edft+; N+1 steps otherwise).
-    fn update(
-        &mut self,
-        py: Python<'_>,
-        x: PyReadonlyArray1<'_, u16>,
-        y: PyReadonlyArray1<'_, u16>,
-        p: PyReadonlyArray1<'_, i16>,
-        t: PyReadonlyArray1<'_, i64>,
-    ) -> PyResult<PyEstimate> {
-        let batch = batch_from_columns(x, y, p, t)?;
-        let core = self.sync_core()?;
-        let est = py.detach(|| core.update(&batch)).map_err(to_py)?;
-        Ok(PyEstimate { inner: est })
+    /// Ingest one EVENT_CD batch (every event) and run one cycle (1 LM + N search for edft+;
+    /// N+1 steps otherwise).
+    fn update(&self, py: Python<'_>, events: EventArray<'_>) -> PyResult<PyEstimate> {
+        let ev = records(&events)?;
+        let est = self.with_core(py, |core| core.update(ev))?;
+        Ok(PyEstimate {
+            inner: est.map_err(to_py)?,
+        })
     }
 
-    /// Ingest one batch without stepping.
-    fn ingest(
-        &mut self,
-        py: Python<'_>,
-        x: PyReadonlyArray1<'_, u16>,
-        y: PyReadonlyArray1<'_, u16>,
-        p: PyReadonlyArray1<'_, i16>,
-        t: PyReadonlyArray1<'_, i64>,
-    ) -> PyResult<()> {
-        let batch = batch_from_columns(x, y, p, t)?;
-        let core = self.sync_core()?;
-        py.detach(|| core.ingest(&batch)).map_err(to_py)
+    /// Ingest one EVENT_CD batch (every event) without stepping.
+    fn ingest(&self, py: Python<'_>, events: EventArray<'_>) -> PyResult<()> {
+        let ev = records(&events)?;
+        self.with_core(py, |core| core.ingest(ev))?.map_err(to_py)
     }
 
     /// Run `n` single updates (each one LM or one search step) on the current events.
     #[pyo3(signature = (n=1))]
-    fn step(&mut self, py: Python<'_>, n: usize) -> PyResult<PyEstimate> {
-        let core = self.sync_core()?;
-        let est = py.detach(|| {
+    fn step(&self, py: Python<'_>, n: usize) -> PyResult<PyEstimate> {
+        let est = self.with_core(py, |core| {
             let mut e = core.latest();
             for _ in 0..n {
                 e = core.step();
             }
             e
-        });
+        })?;
         Ok(PyEstimate { inner: est })
     }
 
-    /// Start the solver thread.
-    fn start(&mut self) -> PyResult<()> {
-        match std::mem::replace(&mut self.state, State::Moving) {
-            State::Sync(core) => match ThreadedTracker::start(*core) {
+    /// Start the solver thread; an error if it already runs. On failure the tracker stays
+    /// synchronous and usable.
+    fn start(&self, py: Python<'_>) -> PyResult<()> {
+        self.with_state(py, |state| {
+            if !matches!(state, State::Sync(_)) {
+                return Err(PyRuntimeError::new_err("the tracker is already running"));
+            }
+            let State::Sync(core) = std::mem::replace(state, State::Moving) else {
+                unreachable!("checked just above, under the same lock")
+            };
+            match ThreadedTracker::start(*core) {
                 Ok(t) => {
-                    self.state = State::Threaded(t);
+                    *state = State::Threaded(Box::new(t));
                     Ok(())
                 }
-                Err(e) => Err(to_py(e)),
-            },
-            other => {
-                self.state = other;
-                Err(PyRuntimeError::new_err("the tracker is already running"))
+                Err(failed) => {
+                    *state = State::Sync(failed.core);
+                    Err(to_py(failed.error))
+                }
             }
-        }
+        })?
     }
 
-    /// Queue a batch for the running thread; never blocks.
-    fn push(
-        &mut self,
-        x: PyReadonlyArray1<'_, u16>,
-        y: PyReadonlyArray1<'_, u16>,
-        p: PyReadonlyArray1<'_, i16>,
-        t: PyReadonlyArray1<'_, i64>,
-    ) -> PyResult<()> {
-        let batch = batch_from_columns(x, y, p, t)?;
-        match &mut self.state {
-            State::Threaded(tr) => tr.push(batch).map_err(to_py),
+    /// Ingest an EVENT_CD batch on the calling thread (GIL released) and wake the solver thread.
+    /// Under overload a uniform fraction of the batch is kept (see stats()).
+    fn push(&self, py: Python<'_>, events: EventArray<'_>) -> PyResult<()> {
+        let ev = records(&events)?;
+        self.with_state(py, |state| match state {
+            State::Threaded(tr) => tr.push(ev).map_err(to_py),
             _ => Err(PyRuntimeError::new_err(
                 "push() needs a running tracker: call start() first",
             )),
-        }
+        })?
     }
 
-    /// The newest estimate (threaded or not).
-    fn latest(&self) -> PyResult<PyEstimate> {
-        match &self.state {
-            State::Sync(core) => Ok(PyEstimate {
-                inner: core.latest(),
-            }),
-            State::Threaded(t) => Ok(PyEstimate { inner: t.latest() }),
-            State::Moving => Err(PyRuntimeError::new_err("tracker is between states")),
+    /// The newest estimate (threaded or not). Lock-free.
+    fn latest(&self) -> PyEstimate {
+        PyEstimate {
+            inner: self.output.latest(),
         }
     }
 
     /// Stop the solver thread (no-op when not running).
-    fn stop(&mut self, py: Python<'_>) -> PyResult<()> {
-        match std::mem::replace(&mut self.state, State::Moving) {
-            State::Threaded(t) => {
-                let core = py.detach(|| t.stop()).map_err(to_py)?;
-                self.state = State::Sync(Box::new(core));
-                Ok(())
+    fn stop(&self, py: Python<'_>) -> PyResult<()> {
+        self.with_state(py, |state| {
+            if !matches!(state, State::Threaded(_)) {
+                return;
             }
-            other => {
-                self.state = other;
-                Ok(())
-            }
-        }
+            let State::Threaded(t) = std::mem::replace(state, State::Moving) else {
+                unreachable!("checked just above, under the same lock")
+            };
+            *state = State::Sync(Box::new(t.stop()));
+        })
     }
 
     /// Steps per cycle: 1 LM + N search for edft+, N + 1 steps of a single solver otherwise. After
     /// this many steps without new events the thread rests until the next batch.
     #[getter]
-    fn cycle_len(&self) -> PyResult<usize> {
-        match &self.state {
-            State::Sync(core) => Ok(core.cycle_len()),
-            _ => Err(PyRuntimeError::new_err(
-                "the tracker thread is running: read cycle_len before start()",
-            )),
-        }
+    fn cycle_len(&self, py: Python<'_>) -> PyResult<usize> {
+        self.with_core(py, |core| core.cycle_len())
     }
 
     #[getter]
-    fn running(&self) -> bool {
-        matches!(&self.state, State::Threaded(t) if t.is_running())
+    fn running(&self, py: Python<'_>) -> PyResult<bool> {
+        self.with_state(
+            py,
+            |state| matches!(state, State::Threaded(t) if t.is_running()),
+        )
     }
 
-    /// Re-initialise the pose (4×4 T_c_o); the front-end keeps its events.
+    /// Re-initialise the pose (4×4 T_c_o); the front-end keeps its events. Reads lost until the
+    /// next update.
     #[allow(non_snake_case)]
-    fn reset_pose(&mut self, T_c_o: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
-        let pose = matrix_from_py(&T_c_o)?;
-        self.sync_core()?.reset_pose(pose).map_err(to_py)
+    fn reset_pose(&self, py: Python<'_>, T_c_o: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
+        let pose = pose_arg(&T_c_o)?;
+        self.with_core(py, |core| core.reset_pose(pose))?
+            .map_err(to_py)
     }
 
-    /// Step counts and time per kind, dropped events, rejected jumps (a dict).
+    /// Forget every event and the time line (threaded or not); the pose stays. Needed after a
+    /// camera restarted its clock.
+    fn reset_events(&self, py: Python<'_>) -> PyResult<()> {
+        self.with_state(py, |state| match state {
+            State::Sync(core) => core.reset_events(),
+            State::Threaded(t) => t.reset_events(),
+            State::Moving => {}
+        })
+    }
+
+    /// Live counters (a dict): step counts and seconds per kind, events offered / ingested /
+    /// dropped (thinned under overload), rejected jumps. Lock-free.
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
-        let (s, dropped) = match &self.state {
-            State::Sync(core) => (core.stats(), 0),
-            State::Threaded(t) => (Default::default(), t.dropped_events()),
-            State::Moving => return Err(PyRuntimeError::new_err("tracker is between states")),
-        };
+        let s = self.output.stats();
         let d = pyo3::types::PyDict::new(py);
         d.set_item("lm_steps", s.lm_steps)?;
         d.set_item("search_steps", s.search_steps)?;
         d.set_item("lm_seconds", s.lm_seconds)?;
         d.set_item("search_seconds", s.search_seconds)?;
-        d.set_item("events_dropped", s.events_dropped + dropped)?;
+        d.set_item("events_offered", s.events_offered)?;
+        d.set_item("events_ingested", s.events_ingested)?;
+        d.set_item("events_dropped", s.events_dropped)?;
         d.set_item("jumps_rejected", s.jumps_rejected)?;
         Ok(d)
     }
 
     /// Model points projected at the current pose, (N, 2) rectified pixels.
-    fn projected_points<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let pts = self.sync_core()?.projected_points();
+    fn projected_points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let pts = self.with_core(py, |core| core.projected_points())?;
         Ok(
             numpy::ndarray::Array2::from_shape_fn((pts.len(), 2), |(i, j)| {
                 if j == 0 {
@@ -337,20 +319,25 @@ impl PyTracker {
     }
 
     /// The last full-resolution field: (values (h, w) float32, (x0, y0) of its region).
-    fn field<'py>(&mut self, py: Python<'py>) -> PyResult<FieldWithOrigin<'py>> {
-        let lvl = self.sync_core()?.field_level0();
-        let (w, h) = (lvl.roi.width as usize, lvl.roi.height as usize);
-        let arr = numpy::ndarray::Array2::from_shape_vec((h, w), lvl.value.clone())
+    fn field<'py>(&self, py: Python<'py>) -> PyResult<FieldWithOrigin<'py>> {
+        let (value, roi) = self.with_core(py, |core| {
+            let lvl = core.field_level0();
+            (lvl.value.clone(), lvl.roi)
+        })?;
+        let (w, h) = (roi.width as usize, roi.height as usize);
+        let arr = numpy::ndarray::Array2::from_shape_vec((h, w), value)
             .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
-        Ok((arr.into_pyarray(py), (lvl.roi.x0, lvl.roi.y0)))
+        Ok((arr.into_pyarray(py), (roi.x0, roi.y0)))
     }
 
     /// Active pixels of the front-end in the full rectified image, (H, W) uint8.
-    fn active_mask<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<u8>>> {
-        let core = self.sync_core()?;
-        let (w, h) = (core.camera().width, core.camera().height);
-        let mut out = vec![0u8; w as usize * h as usize];
-        core.surface().fill_mask(evcore::Roi::full(w, h), &mut out);
+    fn active_mask<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<u8>>> {
+        let (w, h, out) = self.with_core(py, |core| {
+            let (w, h) = (core.camera().width, core.camera().height);
+            let mut out = vec![0u8; w as usize * h as usize];
+            core.fill_mask(evcore::Roi::full(w, h), &mut out);
+            (w, h, out)
+        })?;
         numpy::ndarray::Array2::from_shape_vec((h as usize, w as usize), out)
             .map(|a| a.into_pyarray(py))
             .map_err(|e| PyRuntimeError::new_err(e.to_string()))
@@ -358,17 +345,40 @@ impl PyTracker {
 }
 
 impl PyTracker {
-    fn sync_core(&mut self) -> PyResult<&mut TrackerCore> {
-        match &mut self.state {
-            State::Sync(core) => Ok(core),
+    /// Run `f` on the state under its lock with the GIL released (no lock holder ever waits for
+    /// the GIL, so the two cannot deadlock).
+    fn with_state<T: Send>(
+        &self,
+        py: Python<'_>,
+        f: impl FnOnce(&mut State) -> T + Send,
+    ) -> PyResult<T> {
+        py.detach(|| {
+            let mut state = self.state.lock().map_err(|_| {
+                PyRuntimeError::new_err("the tracker is unusable after an internal error")
+            })?;
+            Ok(f(&mut state))
+        })
+    }
+
+    /// As `with_state` on the synchronous core; an error while the thread runs.
+    fn with_core<T: Send>(
+        &self,
+        py: Python<'_>,
+        f: impl FnOnce(&mut TrackerCore) -> T + Send,
+    ) -> PyResult<T> {
+        self.with_state(py, |state| match state {
+            State::Sync(core) => Ok(f(core)),
             _ => Err(PyRuntimeError::new_err(
                 "the tracker thread is running: call stop() first (or use push/latest)",
             )),
-        }
+        })?
     }
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyTracker>()?;
-    m.add_class::<PyEstimate>()
+    m.add_class::<PyEstimate>()?;
+    // The names the Tracker accepts, for Python's command-line choices: parsed here only.
+    m.add("SOLVERS", SolverMode::NAMES)?;
+    m.add("FRONTENDS", FrontEnd::NAMES)
 }

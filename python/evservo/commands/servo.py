@@ -36,6 +36,7 @@ def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> Non
     Sim-only options parse to None when not given, so ``--robot`` can tell they were."""
     from dataclasses import fields
 
+    from evservo.commands.track import add_viewer_arguments
     from evservo.sim.episode import COST_MODELS, PREDICTORS, EpisodeConfig
     from evservo.tracking import SOLVERS
 
@@ -93,6 +94,7 @@ def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> Non
         help="also draw the UR5e and Panda arms into the rendered event camera (needs --events render)",
     )
     p.add_argument("--out", type=Path, help="output directory (summary.json, log.csv, motion.png)")
+    add_viewer_arguments(p)
 
 
 def sim_options_given(args: argparse.Namespace) -> list[str]:
@@ -120,6 +122,11 @@ def run_with_report(args: argparse.Namespace, default_out: Path, compare_paper_l
     from evservo.outputs import prepare_out_dir
     from evservo.sim.episode import OUTPUTS
 
+    events = args.events if args.events is not None else args.episode_defaults.get("event_source", "edges")
+    if args.render_arms and events != "render":
+        raise ValueError(
+            f"--render-arms draws the arms in the rendered event camera: needs --events render, not --events {events}"
+        )
     cfg = config_from_args(args)
     literal = compare_paper_law and cfg.feedforward
     # Checked, and cleared of an earlier run's files, before the run: never fails after it.
@@ -129,7 +136,7 @@ def run_with_report(args: argparse.Namespace, default_out: Path, compare_paper_l
         f"servo (sim): {cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s, "
         f"{cfg.duration_s} s, {_law_name(cfg)}, cost model {cfg.cost_model}"
     )
-    summary = _run_and_write(cfg, out)
+    summary = _run_and_write(cfg, out, args.viewer, args.viewer_save)
     print_summary(summary)
     if summary["interrupted"]:
         print(f"evservo: interrupted: partial outputs (marked interrupted) in {out}", file=sys.stderr)
@@ -150,14 +157,21 @@ def _law_name(cfg) -> str:
     return "the paper's literal Eq. (5)-(6)"
 
 
-def _run_and_write(cfg, out: Path) -> dict:
-    """Run one episode with a progress bar and write its outputs into ``out``; returns its summary."""
+def _run_and_write(cfg, out: Path, viewer_kind: str | None = None, viewer_save: str | None = None) -> dict:
+    """Run one episode with a progress bar (and the live viewer, if asked for) and write its outputs
+    into ``out``; returns its summary."""
     from tqdm import tqdm
 
     from evservo.sim.episode import run_episode, summarize, write_outputs
+    from evservo.viewer import open_viewer
 
-    with tqdm(total=round(cfg.duration_s * 1000), unit="ms", desc="simulated", leave=False) as bar:
-        result = run_episode(cfg, progress=bar.update)
+    viewer = open_viewer(viewer_kind, viewer_save)
+    try:
+        with tqdm(total=round(cfg.duration_s * 1000), unit="ms", desc="simulated", leave=False) as bar:
+            result = run_episode(cfg, progress=bar.update, viewer=viewer)
+    finally:
+        if viewer is not None:
+            viewer.close()
     summary = summarize(result)
     paths = write_outputs(result, out, summary)
     print(f"figure: {paths['motion']}\nsummary: {paths['summary']}\nlog: {paths['log']}")
@@ -202,6 +216,8 @@ def print_summary(s: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.sim and (args.viewer or args.viewer_save):
+        raise ValueError("--viewer and --viewer-save apply to --sim (and evservo track), not yet to the real loop")
     if not args.sim:
         from evservo.commands.servo_real import run_real
 

@@ -12,12 +12,9 @@ def run(args: argparse.Namespace) -> int:
     from evservo.outputs import prepare_out_dir
     from evservo.runtime.inputs import parse_pose
     from evservo.runtime.track import OUTPUTS, track_file
-    from evservo.tracking import FRONTENDS, SOLVERS
+    from evservo.tracking import SOLVERS
+    from evservo.viewer import open_viewer
 
-    if args.solver not in SOLVERS:
-        raise ValueError(f"unknown solver {args.solver!r}; choose one of {SOLVERS}")
-    if args.frontend not in FRONTENDS:
-        raise ValueError(f"unknown front-end {args.frontend!r}; choose one of {FRONTENDS}")
     camera = load_camera_file(args.camera) if args.camera else None
     init = parse_pose(args.init_pose) if args.init_pose else None
     solvers = SOLVERS if args.compare else (args.solver,)
@@ -26,11 +23,16 @@ def run(args: argparse.Namespace) -> int:
             for solver in solvers}  # fmt: skip
     rows, notes = [], []
     for solver in solvers:
-        s = track_file(
-            args.recording, solver, outs[solver], model=args.model, init_pose=init,
-            camera=camera, frontend=args.frontend, batch_us=args.batch_us, max_seconds=args.max_seconds,
-            progress=not args.quiet, notes=notes,
-        )  # fmt: skip
+        viewer = open_viewer(args.viewer, _viewer_file(args.viewer_save, solver, args.compare))
+        try:
+            s = track_file(
+                args.recording, solver, outs[solver], model=args.model, init_pose=init,
+                camera=camera, frontend=args.frontend, batch_us=args.batch_us, max_seconds=args.max_seconds,
+                progress=not args.quiet, notes=notes, viewer=viewer, topic=args.topic,
+            )  # fmt: skip
+        finally:
+            if viewer is not None:
+                viewer.close()
         rows.append(s)
         if s["interrupted"]:
             break
@@ -55,17 +57,37 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _viewer_file(save: str | None, solver: str, compare: bool) -> str | None:
+    """``--viewer-save`` for one solver: with ``--compare`` one file per solver (``run-edft.rrd``)."""
+    if save is None or not compare:
+        return save
+    p = Path(save)
+    return str(p.with_name(f"{p.stem}-{solver.replace('+', 'plus')}{p.suffix}"))
+
+
+def add_viewer_arguments(p: argparse.ArgumentParser) -> None:
+    """``--viewer`` and ``--viewer-save`` (shared by track and servo)."""
+    p.add_argument(
+        "--viewer", choices=("rerun",), help="show the run live in rerun's web viewer (pip install 'evservo[viewer]')"
+    )
+    p.add_argument("--viewer-save", metavar="RUN.rrd", help="write the rerun recording to this .rrd file")
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     t = sub.add_parser("track", help="open-loop tracking of an event recording")
     t.add_argument("recording", help="event file: an evservo sim recording (.h5) or any evservo.io format (.raw, ...)")
-    t.add_argument("--solver", default="edft+", help="edft+, edopts or edft")
-    t.add_argument("--frontend", default="scarf", help="scarf, fixed-count or eros")
+    from evservo.tracking import FRONTENDS, SOLVERS
+
+    t.add_argument("--solver", default="edft+", choices=SOLVERS)
+    t.add_argument("--frontend", default="scarf", choices=FRONTENDS)
     t.add_argument("--compare", action="store_true", help="run edft+, edopts and edft; outputs in OUT/<solver>")
     t.add_argument("--model", help="object: built-in name or mesh path (default: the recording's)")
     t.add_argument("--init-pose", help="initial T_c_o as x,y,z,qx,qy,qz,qw (default: the recording's ground truth)")
+    t.add_argument("--topic", help="the event topic of a ROS bag holding several")
     t.add_argument("--camera", help="camera file (YAML/JSON; evservo's layout, OpenCV YAML or ROS camera_info)")
     t.add_argument("--batch-us", type=int, default=1000, help="events per update, as a time slice (µs)")
     t.add_argument("--max-seconds", type=float, help="track only the first seconds of the recording")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_viewer_arguments(t)
     t.add_argument("--out", required=True, help="output directory")
     t.set_defaults(func=run)

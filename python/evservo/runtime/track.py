@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from evservo import _evcore
 from evservo.geometry import pose_errors
+from evservo.inputs import require_regular_file
 from evservo.interrupt import StopOnInterrupt
 from evservo.outputs import make_out_dir
 from evservo.runtime.inputs import resolve_camera
@@ -33,20 +35,22 @@ def track_file(
     path: str | Path, solver: str, out: Path, *, model: str | None = None, init_pose: np.ndarray | None = None,
     camera: _evcore.Camera | None = None, frontend: str = "scarf", batch_us: int = 1000,
     max_seconds: float | None = None, progress: bool = True, notes: list[str] | None = None,
+    viewer: Any = None, topic: str | None = None,
 ) -> dict:  # fmt: skip
     """Track one recording with one solver and write the outputs to ``out``; returns the summary.
 
     ``model``, ``init_pose`` (``T_c_o`` at the first event, 4×4) and ``camera`` default to what a
     simulated recording carries (the IMX636 for a bare 1280×720 file); ``notes`` collects lines about
-    such choices for the user."""
+    such choices for the user. ``viewer`` (a :class:`~evservo.viewer.RerunViewer`) is shown every
+    update; the caller closes it. ``topic`` picks the event topic of a ROS bag."""
     from tqdm import tqdm
 
-    from evservo import events, io
+    from evservo import bags, events, io
     from evservo.sim.record import gt_at, is_recording, load_recording
     from evservo.tracking import Tracker
 
-    path = io.require_regular_file(path, "recording")
-    meta = io.info(path)
+    path = Path(path) if bags.is_bag(Path(path)) else require_regular_file(path, "recording")
+    meta = io.info(path, topic)
     rec = load_recording(path) if is_recording(path) else None
     cam = resolve_camera(
         str(path), (meta["width"], meta["height"]), camera, rec.camera if rec else None, "give --camera FILE", notes
@@ -77,7 +81,7 @@ def track_file(
     bar = tqdm(total=n_slices, unit="batch", desc=f"{solver:>7}", disable=not progress, leave=False)
     interrupted = False
     with StopOnInterrupt() as stop:
-        for k, ev in enumerate(io.open_events(path, delta_t_us=batch_us)):
+        for k, ev in enumerate(io.open_events(path, delta_t_us=batch_us, topic=topic)):
             if stop.requested:  # Ctrl-C: keep what was tracked, marked as interrupted
                 interrupted = True
                 break
@@ -88,6 +92,8 @@ def track_file(
             started = time.perf_counter()
             est = trk.update(ev)
             solve_s += time.perf_counter() - started
+            if viewer is not None:
+                viewer.track(end, ev, est, trk, gt_at(rec.gt_t_us, rec.gt_T, np.array([end]))[0] if rec else None)
             ts.append(end)
             Ts.append(est.T_c_o)
             lost.append(est.lost)

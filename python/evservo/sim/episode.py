@@ -37,6 +37,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -61,6 +62,8 @@ from evservo.tracking import FRONTENDS, SOLVERS, Tracker
 COST_MODELS = ("measured", "fixed")
 PREDICTORS = ("velocity", "acceleration")
 TICK_US = 1000  # physics step and event batch
+#: Longest episode: the per-tick (1 kHz) record is preallocated, ~0.4 kB a tick.
+MAX_DURATION_S = 3600.0
 #: The files :func:`write_outputs` writes into an episode's directory.
 OUTPUTS = ("summary.json", "log.csv", "motion.png")
 
@@ -141,6 +144,17 @@ class EpisodeConfig:
             raise ValueError(f"unknown event source {self.event_source!r}; choose one of {sorted(EVENT_SOURCES)}")
         if not (self.duration_s > 0 and self.distance_m > 0 and self.speed_mps >= 0 and self.ramp_s >= 0):
             raise ValueError("duration and distance must be > 0, speed and ramp >= 0")
+        numbers = dict(duration_s=self.duration_s, distance_m=self.distance_m, speed_mps=self.speed_mps,
+                       rot_rate_dps=self.rot_rate_dps, ramp_s=self.ramp_s, stiffness=self.stiffness)  # fmt: skip
+        for name, v in numbers.items():
+            if not np.isfinite(v):
+                raise ValueError(f"{name} must be finite, got {v}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        # The trajectory (a kind or a CSV file) is checked here, before any simulation is set up.
+        trajectories.make_trajectory(self.trajectory, speed_mps=self.speed_mps, rot_rate_dps=self.rot_rate_dps)
+        if self.duration_s > MAX_DURATION_S:
+            raise ValueError(f"duration must be at most {MAX_DURATION_S:g} s (per-tick record), got {self.duration_s}")
         if not (self.lm_cost_s > 0 and self.search_cost_s > 0 and self.sensing_latency_s >= 0):
             raise ValueError("step costs must be > 0 and the latency >= 0")
         for name in ("control_period_s", "ur_period_s", "panda_period_s"):
@@ -309,10 +323,14 @@ def _cost_model(config: EpisodeConfig) -> Callable[[str, float], float]:
 
 
 def run_episode(
-    config: EpisodeConfig, scene: DualArmScene | None = None, progress: Callable[[int], None] | None = None
+    config: EpisodeConfig,
+    scene: DualArmScene | None = None,
+    progress: Callable[[int], None] | None = None,
+    viewer: Any = None,
 ) -> EpisodeResult:
     """Run one closed-loop episode; ``progress`` is called with the number of simulated
-    milliseconds done since its previous call. ``scene`` may be reused across episodes (it is reset)."""
+    milliseconds done since its previous call. ``scene`` may be reused across episodes (it is reset).
+    ``viewer`` (a :class:`~evservo.viewer.RerunViewer`) is shown every tick; the caller closes it."""
     cfg = config
     wall0 = time.perf_counter()
     scene = scene or DualArmScene()
@@ -421,6 +439,10 @@ def run_episode(
             if drop is not None and len(events):
                 events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
             n_events += len(events)
+            if viewer is not None:
+                # The tick's poses (before the step), with the events simulated over it.
+                T_w_c_k, T_w_o_k = rec["T_w_c"][k], rec["T_w_o"][k]
+                viewer.servo(t_us, events, est, core, T_w_c=T_w_c_k, T_c_o_des=T_c_o_des, T_w_o_true=T_w_o_k)
             tracker.deliver(t_next + latency_us, events)
             tracker.advance(t_next)
             if progress is not None and (k + 1) % 100 == 0:

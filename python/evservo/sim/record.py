@@ -80,6 +80,13 @@ class RecordConfig:
                 raise ValueError(f"{name} must be finite and > 0, got {v}")
         if not (np.isfinite(self.speed_mps) and self.speed_mps >= 0):
             raise ValueError(f"speed must be finite and >= 0 m/s, got {self.speed_mps}")
+        if not (np.isfinite(self.rot_rate_dps) and self.rot_rate_dps >= 0):
+            raise ValueError(f"rotation rate must be finite and >= 0 deg/s, got {self.rot_rate_dps}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        trajectories.make_trajectory(self.trajectory, speed_mps=self.speed_mps, rot_rate_dps=self.rot_rate_dps)
+        if self.duration_s > 3600:
+            raise ValueError(f"duration must be at most 3600 s (ground truth is held at 1 kHz), got {self.duration_s}")
         if self.gt_rate_hz < 1000:
             raise ValueError(f"ground truth needs >= 1000 Hz, got {self.gt_rate_hz}")
 

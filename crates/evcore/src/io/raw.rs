@@ -2,6 +2,7 @@
 
 use super::{DecodeStats, Decoder, Format, RawHeader};
 use crate::error::{Error, Result};
+use crate::event::EventSink;
 use crate::EventBatch;
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
@@ -82,7 +83,7 @@ impl<R: Read> RawReader<R> {
 
     /// Appends the next `n` events to `out` (fewer at the end of the stream). Returns false,
     /// appending nothing, once the stream is exhausted.
-    pub fn read_n_events(&mut self, n: usize, out: &mut EventBatch) -> Result<bool> {
+    pub fn read_n_events(&mut self, n: usize, out: &mut impl EventSink) -> Result<bool> {
         self.check()?;
         while self.buf.len() - self.pos < n && self.fill()? {}
         let end = self.pos + n.min(self.buf.len() - self.pos);
@@ -93,7 +94,7 @@ impl<R: Read> RawReader<R> {
     /// with growing `t_us` slice the stream by time. Events that step back in time after that
     /// cut belong to the next slice: stream order is never changed. Returns false, appending
     /// nothing, once the stream is exhausted; an empty slice inside the stream returns true.
-    pub fn read_until_t(&mut self, t_us: i64, out: &mut EventBatch) -> Result<bool> {
+    pub fn read_until_t(&mut self, t_us: i64, out: &mut impl EventSink) -> Result<bool> {
         self.check()?;
         let mut scanned = 0;
         let end = loop {
@@ -109,6 +110,31 @@ impl<R: Read> RawReader<R> {
         Ok(self.hand_out(end, out))
     }
 
+    /// Appends every remaining event to `out`; returns how many.
+    pub fn read_all(&mut self, out: &mut impl EventSink) -> Result<usize> {
+        self.check()?;
+        let mut n = 0;
+        loop {
+            n += self.buf.len() - self.pos;
+            let end = self.buf.len();
+            self.hand_out(end, out);
+            if !self.fill()? {
+                return Ok(n);
+            }
+        }
+    }
+
+    /// Time of the next event without consuming it; None once the stream is exhausted.
+    pub fn peek_t(&mut self) -> Result<Option<i64>> {
+        self.check()?;
+        while self.pos == self.buf.len() {
+            if !self.fill()? {
+                return Ok(None);
+            }
+        }
+        Ok(Some(self.buf.t_us[self.pos]))
+    }
+
     fn check(&self) -> Result<()> {
         match &self.failed {
             Some(e) => Err(e.clone()),
@@ -117,12 +143,9 @@ impl<R: Read> RawReader<R> {
     }
 
     /// Moves buffered events `pos..end` to `out`; false when nothing moved and nothing is left.
-    fn hand_out(&mut self, end: usize, out: &mut EventBatch) -> bool {
+    fn hand_out(&mut self, end: usize, out: &mut impl EventSink) -> bool {
         let (a, b) = (self.pos, end);
-        out.x.extend_from_slice(&self.buf.x[a..b]);
-        out.y.extend_from_slice(&self.buf.y[a..b]);
-        out.p.extend_from_slice(&self.buf.p[a..b]);
-        out.t_us.extend_from_slice(&self.buf.t_us[a..b]);
+        out.extend_from_batch(&self.buf, a..b);
         self.pos = end;
         end > a || !(self.eof && self.pos == self.buf.len())
     }

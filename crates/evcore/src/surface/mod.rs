@@ -16,6 +16,7 @@ pub use scarf::{Scarf, ScarfGeometry, ScarfReader, ScarfWriter};
 
 use crate::error::{ensure, Error, Result};
 use crate::image::Roi;
+use std::sync::{Arc, Mutex, PoisonError};
 
 /// A front-end that ingests rectified events and reports which pixels are active.
 pub trait EventSurface: Send + Sync {
@@ -55,17 +56,22 @@ impl FrontEnd {
         }
     }
 
+    /// The accepted names, the only spellings [`FrontEnd::parse`] takes (the bindings hand this
+    /// list to Python for its command-line choices).
+    pub const NAMES: [&'static str; 3] = ["scarf", "fixed-count", "eros"];
+
     /// "scarf" (block 14, alpha 1), "fixed-count" (8000 events) or "eros" (k 7, d 0.7 as EDOPT's main.cpp).
     pub fn parse(name: &str) -> Result<Self> {
-        match name.trim().to_ascii_lowercase().as_str() {
+        match name {
             "scarf" => Ok(Self::scarf_default()),
-            "fixed-count" | "fixed_count" => Ok(Self::FixedCount { n_events: 8000 }),
+            "fixed-count" => Ok(Self::FixedCount { n_events: 8000 }),
             "eros" => Ok(Self::Eros {
                 kernel_px: 7,
                 decay: 0.7,
             }),
             _ => Err(Error::InvalidArgument(format!(
-                "unknown front-end {name:?}; expected \"scarf\", \"fixed-count\" or \"eros\""
+                "unknown front-end {name:?}; choose one of {}",
+                Self::NAMES.join(", ")
             ))),
         }
     }
@@ -82,6 +88,99 @@ pub fn make_surface(kind: &FrontEnd, width: u32, height: u32) -> Result<Box<dyn 
             Box::new(Eros::new(width, height, kernel_px, decay)?)
         }
     })
+}
+
+/// The ingest half of a front-end split for two threads: exactly one, owned by whoever pushes events.
+pub trait SurfaceWriter: Send {
+    /// Ingest events at rectified pixel indices (y·width + x); indices ≥ width·height are skipped.
+    fn ingest(&mut self, pixels: &[u32]);
+    /// Forget every event.
+    fn reset(&mut self);
+    /// Another read handle onto the same active set.
+    fn reader(&self) -> Arc<dyn SurfaceReader>;
+}
+
+/// The read half: any number of them, on any thread, while the writer ingests.
+pub trait SurfaceReader: Send + Sync {
+    /// As [`EventSurface::fill_mask`].
+    fn fill_mask(&self, roi: Roi, out: &mut [u8]);
+}
+
+impl SurfaceWriter for ScarfWriter {
+    fn ingest(&mut self, pixels: &[u32]) {
+        ScarfWriter::ingest(self, pixels);
+    }
+    fn reset(&mut self) {
+        ScarfWriter::reset(self);
+    }
+    fn reader(&self) -> Arc<dyn SurfaceReader> {
+        Arc::new(ScarfWriter::reader(self))
+    }
+}
+
+impl SurfaceReader for ScarfReader {
+    fn fill_mask(&self, roi: Roi, out: &mut [u8]) {
+        ScarfReader::fill_mask(self, roi, out);
+    }
+}
+
+/// A front-end without a lock-free split (fixed-count, EROS) shared behind a mutex: ingest holds
+/// it for one batch, a reader for one region's mask.
+struct Locked(Arc<Mutex<Box<dyn EventSurface>>>);
+
+impl Locked {
+    fn with<T>(&self, f: impl FnOnce(&mut dyn EventSurface) -> T) -> T {
+        // A panic while holding the lock cannot leave a surface half-built in a way that matters
+        // more than a stale mask, so a poisoned lock is used as it is.
+        f(self
+            .0
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .as_mut())
+    }
+}
+
+/// Polarity is ignored by every front-end; the writer interface carries pixels only.
+const NO_POLARITY: [i16; 4096] = [1; 4096];
+
+impl SurfaceWriter for Locked {
+    fn ingest(&mut self, pixels: &[u32]) {
+        self.with(|s| {
+            for chunk in pixels.chunks(NO_POLARITY.len()) {
+                s.ingest(chunk, &NO_POLARITY[..chunk.len()]);
+            }
+        });
+    }
+    fn reset(&mut self) {
+        self.with(|s| s.reset());
+    }
+    fn reader(&self) -> Arc<dyn SurfaceReader> {
+        Arc::new(Locked(Arc::clone(&self.0)))
+    }
+}
+
+impl SurfaceReader for Locked {
+    fn fill_mask(&self, roi: Roi, out: &mut [u8]) {
+        self.with(|s| s.fill_mask(roi, out));
+    }
+}
+
+/// Build the front-end `kind` split into its writer and a reader: SCARF shares only its count
+/// image (lock-free); the others share one instance behind a mutex.
+pub fn split_surface(
+    kind: &FrontEnd,
+    width: u32,
+    height: u32,
+) -> Result<(Box<dyn SurfaceWriter>, Arc<dyn SurfaceReader>)> {
+    if let FrontEnd::Scarf { block_px, alpha } = *kind {
+        let (writer, reader) = Scarf::new(width, height, block_px, alpha)?.split();
+        return Ok((Box::new(writer), Arc::new(reader)));
+    }
+    let shared = Arc::new(Mutex::new(make_surface(kind, width, height)?));
+    Ok((
+        Box::new(Locked(Arc::clone(&shared))),
+        Arc::new(Locked(shared)),
+    ))
 }
 
 /// Same bound as [`crate::Camera::new`]; keeps width·height below 2^28 so pixel indices, plus one
@@ -136,9 +235,16 @@ mod tests {
             }
         );
         assert_eq!(
-            FrontEnd::parse(" Fixed-Count ").unwrap(),
+            FrontEnd::parse("fixed-count").unwrap(),
             FrontEnd::FixedCount { n_events: 8000 }
         );
+        // One spelling per front-end: no case or separator variants.
+        for other in [" Fixed-Count ", "fixed_count", "SCARF"] {
+            assert!(FrontEnd::parse(other).is_err(), "{other}");
+        }
+        for name in FrontEnd::NAMES {
+            assert!(FrontEnd::parse(name).is_ok(), "{name}");
+        }
         assert_eq!(
             FrontEnd::parse("eros").unwrap(),
             FrontEnd::Eros {
