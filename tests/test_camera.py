@@ -29,7 +29,8 @@ def test_rectification_inverts_distortion_like_opencv(name):
     raw = rng.uniform([100, 80], [cam.width - 100, cam.height - 80], size=(500, 2))
     ours = cam.rectify_pixels(raw)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    ref = cv2.undistortPoints(raw[:, None, :], cam.k, np.array(cam.dist), None, None, cam.k, criteria)[:, 0]
+    # OpenCV 4.x takes the stopping criteria in undistortPointsIter (5.x folded it into undistortPoints).
+    ref = cv2.undistortPointsIter(raw[:, None, :], cam.k, np.array(cam.dist), None, cam.k, criteria)[:, 0]
     assert np.abs(ours - ref).max() < 1e-4
     # And back: distorting the rectified pixel returns the raw one.
     rays = np.column_stack([(ours - [cam.cx, cam.cy]) / [cam.fx, cam.fy], np.ones(len(ours))])

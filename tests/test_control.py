@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from evservo import geometry
-from evservo.control import CartesianLimits, Pbvs, pose_error, rotmat
+from evservo.control import Pbvs, pose_error, saturation
+from evservo.geometry import rotmat
+from evservo.limits import CartesianLimits
 
 Z = 0.6
 
@@ -171,3 +173,77 @@ def test_pose_error_is_paper_definition():
     T_w_ctgt = geometry.pose((1.0, 0.1, 0.0), (0.0, 0.0, np.pi / 2 + 0.1))
     # 0.1 m along world y is along the camera's x after its 90° yaw.
     np.testing.assert_allclose(pose_error(T_w_c, T_w_ctgt), [0.1, 0, 0, 0, 0, 0.1], atol=1e-12)
+
+
+def test_image_motion_matrix_sees_pans_and_slides_not_orbits():
+    # Camera at the origin looking along +z at an object 0.6 m ahead.
+    A = saturation.image_motion_matrix(np.eye(4), np.array([0.0, 0.0, Z]), radius_m=0.1)
+    slide = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])
+    np.testing.assert_allclose(A[:3] @ slide, [0.3 / Z, 0.0, 0.0], atol=1e-12)  # the centre moves at v/Z
+    # Orbiting the object (slide plus the pan that keeps looking at it) leaves the centre in place but
+    # turns the object's outline.
+    orbit = np.array([0.3, 0.0, 0.0, 0.0, -0.3 / Z, 0.0])
+    np.testing.assert_allclose(A[:3] @ orbit, 0.0, atol=1e-12)
+    assert np.linalg.norm(A[4:] @ orbit) == pytest.approx(0.1 / Z * 0.3 / Z)
+    # Approaching only grows the object: radius / Z² per m/s.
+    np.testing.assert_allclose(A @ [0, 0, 0.3, 0, 0, 0], [0, 0, 0, 0.1 / Z**2 * 0.3, 0, 0, 0], atol=1e-12)
+    # The matrix is for world-frame twists: a camera turned 90° about z sees a world-x slide as its −y.
+    T = geometry.pose((0, 0, 0), (0, 0, np.pi / 2))
+    A_t = saturation.image_motion_matrix(T, T[:3, :3] @ [0.0, 0.0, Z], radius_m=0.1)
+    np.testing.assert_allclose(A_t[:3] @ slide, [0.0, -0.3 / Z, 0.0], atol=1e-12)
+
+
+def test_image_rate_limit_caps_only_the_motion_relative_to_the_target():
+    A = saturation.image_motion_matrix(np.eye(4), np.array([0.0, 0.0, Z]), radius_m=0.1)
+    v_ref = np.array([0.5, 0.1, 0.0, 0.0, 0.2, 0.0])
+    slow = v_ref + np.array([0.05, 0, 0, 0, 0, 0])
+    np.testing.assert_array_equal(saturation.limit_image_rate(slow, v_ref, A, 0.5), slow)
+    fast = v_ref + np.array([0.6, -0.3, 0.1, 0.2, 0.0, 0.4])
+    out = saturation.limit_image_rate(fast, v_ref, A, 0.5)
+    assert np.linalg.norm(A @ (out - v_ref)) == pytest.approx(0.5)
+    d, d_out = fast - v_ref, out - v_ref
+    np.testing.assert_allclose(d_out / np.linalg.norm(d_out), d / np.linalg.norm(d), atol=1e-12)
+
+
+def test_catch_up_after_an_arm_that_could_not_follow_stays_within_the_image_rate():
+    """The arm delivers at most 0.1 m/s for 1.5 s of a 0.3 m/s target (the camera falls 0.3 m behind),
+    then everything: with the limit the camera closes the gap with the image moving at ≤ 0.2 rad/s,
+    without it (up to the 0.8 m/s Cartesian limit) at several times that."""
+    speed, cap_until, max_rate = 0.3, 1.5, 0.2
+    target = constant_velocity_target(speed)
+    v_true = np.array([speed, 0, 0, 0, 0, 0])
+
+    def reach_while_capped(clock):
+        def reach(v, W, dt):
+            if clock[0] >= cap_until:
+                return v
+            return np.concatenate([saturation.clip_norm(v[:3], 0.1), v[3:]])
+
+        return reach
+
+    peak = {}
+    for limit in (max_rate, None):
+        clock = [0.0]
+        ctrl = Pbvs(feedforward=True, period_s=0.002, max_image_rate_rad_s=limit, reach=reach_while_capped(clock),
+                    stale_after_s=10.0, max_jump_m=1.0)  # fmt: skip
+        h = ctrl.period_s
+        T_w_c = target(0.0) @ geometry.inv(geometry.pose((0, 0, Z)))
+        v = np.zeros(6)
+        ctrl.start(T_w_c, geometry.inv(T_w_c) @ target(0.0), t_s=0.0)
+        rates, limited, gaps = [], [], []
+        for i in range(1, round(4.0 / h) + 1):
+            t = clock[0] = i * h
+            cmd = ctrl.update(t, T_w_c, v, geometry.inv(T_w_c) @ target(t) if i % 5 == 0 else None)
+            limited.append(cmd.arm_limited)
+            gaps.append(np.linalg.norm(cmd.e[:3]))
+            A = saturation.image_motion_matrix(T_w_c, target(t)[:3, 3], 0.1)
+            if t > cap_until + 0.2:  # once the velocity estimate has settled
+                rates.append(np.linalg.norm(A @ (cmd.v_c_w - v_true)))
+            T_w_c, v = integrate(T_w_c, v, cmd.a_c_w, h)
+        assert any(limited[: round(cap_until / h)]) and not any(limited[round(cap_until / h) + 1 :])
+        peak[limit] = max(rates)
+        # Behind by ≥ 0.25 m when the arm is freed, and catching up (0.12 m/s at 0.2 rad/s).
+        gap_freed = gaps[round(cap_until / h)]
+        assert gap_freed > 0.25 and gaps[-1] < gap_freed - 0.2, (gap_freed, gaps[-1])
+    assert peak[max_rate] <= 1.1 * max_rate, peak
+    assert peak[None] > 3 * max_rate, peak

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from evservo.cli import main
-from evservo.sim.episode import EpisodeConfig, estimate_lag_s, run_episode, summarize, write_outputs
+from evservo.runtime.metrics import estimate_lag_s
+from evservo.sim.episode import EpisodeConfig, overshoot_m, run_episode, summarize, write_outputs
 from evservo.sim.scene import DualArmScene
 
 FIXED = {"cost_model": "fixed", "seed": 1}
@@ -121,3 +122,32 @@ def test_real_robot_without_host_is_refused(capsys):
     # The real loop itself is tested in test_realloop.py.
     assert main(["servo", "--robot", "franka"]) == 2
     assert "franka:192.168.1.10" in capsys.readouterr().err
+
+
+def test_overshoot_is_travel_past_the_leaders_extremes_along_its_motion():
+    t = np.linspace(0.0, 2.0, 2001)
+    axis = np.array([0.6, 0.8, 0.0])
+    lead = np.minimum(t, 1.0)[:, None] * 0.3 * axis  # moves 0.3 m, then stops
+    follow = lead.copy()
+    follow[1000:1200] += (0.004 * np.sin(np.linspace(0, np.pi, 200)))[:, None] * axis  # 4 mm past the stop
+    assert overshoot_m(lead, follow) == pytest.approx(0.004, abs=1e-6)
+    assert overshoot_m(lead, lead) == 0.0
+    # Motion across the leader's direction is not overshoot.
+    side = lead + 0.01 * np.array([0.8, -0.6, 0.0])
+    assert overshoot_m(lead, side) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_demo_runs_our_controller_unless_asked_for_the_paper_law_and_servo_the_reverse():
+    from evservo.cli import build_parser
+    from evservo.commands.servo import config_from_args
+
+    def cfg(*argv):
+        return config_from_args(build_parser().parse_args(list(argv)))
+
+    demo = cfg("demo")
+    assert demo.feedforward and demo.duration_s == 12.0 and demo.predictor == "velocity"
+    assert not cfg("demo", "--paper-law").feedforward
+    assert cfg("demo", "--duration", "3", "--predictor", "acceleration").predictor == "acceleration"
+    assert not cfg("servo", "--sim").feedforward and cfg("servo", "--sim", "--feedforward").feedforward
+    with pytest.raises(SystemExit):
+        cfg("demo", "--feedforward", "--paper-law")

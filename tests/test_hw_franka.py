@@ -81,7 +81,7 @@ def test_connect_stream_and_watchdog_stop(sim):
 
 
 def test_limits_reach_the_robot(sim):
-    from evservo.control import CartesianLimits
+    from evservo.limits import CartesianLimits
 
     limits = CartesianLimits(max_lin_vel=0.02, max_ang_vel=0.1)
     with FrankaArm(sim.host, realtime="ignore", limits=limits) as arm:

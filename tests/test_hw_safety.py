@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from evservo.control import CartesianLimits
+from evservo.limits import CartesianLimits
 from evservo.robots.safety import SafetyGate, Workspace
 
 LIM = CartesianLimits(max_lin_vel=0.5, max_ang_vel=1.0, max_lin_acc=2.0, max_ang_acc=4.0)

@@ -13,7 +13,7 @@ from rtde_peer import FakeControl, Peer, make_arm
 
 rtde_receive = pytest.importorskip("rtde_receive", reason="needs ur-rtde")
 
-from evservo.control import CartesianLimits  # noqa: E402
+from evservo.limits import CartesianLimits  # noqa: E402
 from evservo.robots.safety import Workspace  # noqa: E402
 from evservo.robots.ur import UrArm, pose_from_rtde  # noqa: E402
 

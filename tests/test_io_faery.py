@@ -2,8 +2,8 @@
 oracle cross-checks (evt3 for EVT 3.0, aedat for AEDAT4) on the real recording, and corrupt AEDAT4
 files ending in DecodeError.
 
-faery writes EVT 2.0 / EVT 3.0 RAW, AEDAT4, CSV, DAT and ES; evservo reads the first three. CSV,
-DAT and ES are not formats evservo reads, so they are skipped here (with the reason shown).
+faery writes EVT 2.0 / EVT 3.0 RAW, AEDAT4, CSV, DAT and ES; evservo reads the first three and
+refuses the others by name.
 """
 
 import hashlib
@@ -96,9 +96,14 @@ def test_faery_written_files_read_back_identically(tmp_path, kind):
     assert [len(s) for s in counted] == [7_000] * (len(ev) // 7_000) + [len(ev) % 7_000]
 
 
-@pytest.mark.parametrize("kind", ["csv", "dat", "es"])
-def test_faery_formats_evservo_does_not_read(kind):
-    pytest.skip(f"faery writes .{kind}, which evservo.io does not read (RAW, AEDAT4, HDF5, npz, npy only)")
+@pytest.mark.parametrize("suffix", [".csv", ".dat", ".es"])
+def test_faery_formats_evservo_does_not_read_are_refused_by_name(tmp_path, suffix):
+    path = tmp_path / f"events{suffix}"
+    write_with_faery(random_events(seed=5, n=2_000), path)
+    assert path.stat().st_size > 0
+    for read in (io.read_events, io.info, io.open_events):
+        with pytest.raises(ValueError, match=rf"unsupported event file extension '\{suffix}'"):
+            read(path)
 
 
 def sample(name: str):

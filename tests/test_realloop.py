@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from evservo import io
 from evservo.cameras import ReplaySource
 from evservo.cli import main
-from evservo.control import CartesianLimits
+from evservo.limits import CartesianLimits
 from evservo.realloop import RealLoopConfig, run_real_loop, summarize, write_outputs
 from evservo.robots.kinematic import KinematicArm
 from evservo.sim.record import RecordConfig, load_recording, record

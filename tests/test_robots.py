@@ -180,3 +180,53 @@ def test_closed_loop_servo_follows_moving_target(scene):
     # Eq. 6 alone lags a ramp by 2 v / √k (0.18 m at 0.4 m/s); the sinusoid's RMS stays below that.
     assert 0.05 < rms[False] < 0.12, rms
     assert rms[True] < 0.65 * rms[False], rms
+
+
+def test_reach_passes_what_the_panda_can_do_and_cuts_the_rest_image_first(scene):
+    from evservo.control import saturation
+    from evservo.robots.reach import ReachableTwist
+
+    scene.reset_to_start(0.6)
+    reach = ReachableTwist(scene.panda)
+    dt = 0.002
+    small = np.array([0.004, -0.002, 0.001, 0.0, 0.005, 0.0])  # reachable from rest within one period
+    assert reach(small, np.eye(6), dt) is small and not reach.saturated
+    # From rest no joint may change speed by more than q̈_max·dt: 0.5 m/s is out of reach.
+    T_w_c = scene.T_w_c()
+    A = saturation.image_motion_matrix(T_w_c, T_w_c[:3, :3] @ [0, 0, 0.6] + T_w_c[:3, 3], 0.1)
+    W = saturation.image_priority_weights(A, 0.6)
+    big = np.concatenate([T_w_c[:3, :3] @ [0.5, 0.0, 0.3], T_w_c[:3, :3] @ [0.0, -0.4, 0.0]])
+    cut = {}
+    for name, weights in (("image", W), ("plain", np.eye(6))):
+        cut[name] = reach(big, weights, dt)
+        assert reach.saturated
+        lb, ub = joint_velocity_bounds(scene.panda.joint_positions(), scene.panda.qd, dt, PANDA)
+        J = reach.camera_jacobian()
+        # What it returns is the camera twist of joint velocities inside the limits.
+        qd = solve_joint_velocities(J, cut[name], scene.panda.joint_positions(), scene.panda.qd, dt, PANDA,
+                                    damping=1e-9)  # fmt: skip
+        assert np.all(qd >= lb - 1e-9) and np.all(qd <= ub + 1e-9)
+        np.testing.assert_allclose(J @ qd, cut[name], atol=1e-6)
+    # Image first: what is left out moves the object's centre in the image less than an even cut would
+    # (measured 0.29 vs 0.56 rad/s).
+    img = {k: np.linalg.norm(A[:3] @ (v - big)) for k, v in cut.items()}
+    assert img["image"] < 0.7 * img["plain"], img
+
+
+def test_delayed_arm_acts_on_commands_after_the_latency(scene):
+    from evservo.robots.delay import DelayedArm
+
+    scene.reset_to_start(0.9)
+    link = DelayedArm(scene.panda, 0.003)
+    v = np.array([0.0, 0.0, 0.002, 0.0, 0.0, 0.0])
+    link.command_twist(v, 0.001)
+    for t_us in (1000, 2000):
+        link.deliver(t_us)
+        assert not np.any(scene.panda.qd_target)  # not arrived yet
+    link.deliver(3000)
+    assert np.linalg.norm(scene.panda.jacobian() @ scene.panda.qd_target - v) < 1e-4
+    link.stop()
+    link.deliver(5999)
+    assert np.any(scene.panda.qd_target)
+    link.deliver(6000)
+    assert not np.any(scene.panda.qd_target)

@@ -1,28 +1,56 @@
 """Type stubs for the compiled core (crates/evpy). Frames: ``T_c_o`` = object in camera (4×4, metres).
 Pixels: raw sensor grid unless a name says rectified. Time: integer microseconds."""
 
-from typing import Any
+import os
+from typing import Any, TypeAlias, final
 
 import numpy as np
 import numpy.typing as npt
 
 __version__: str
+__all__ = [
+    "EVENT_CD",
+    "FRONTENDS",
+    "SOLVERS",
+    "Camera",
+    "DecodeError",
+    "Estimate",
+    "EventSimulator",
+    "Evt3Decoder",
+    "Evt3Encoder",
+    "Mesh",
+    "RawReader",
+    "SimCamera",
+    "Tracker",
+    "__version__",
+    "adaptive_dt_us",
+    "distance_field",
+    "euclidean_distance",
+    "extract_point_set",
+    "render",
+]
 
-F64 = npt.NDArray[np.float64]
-F32 = npt.NDArray[np.float32]
-U16 = npt.NDArray[np.uint16]
-I16 = npt.NDArray[np.int16]
-I64 = npt.NDArray[np.int64]
+# PyO3 classes are built by ``__new__`` and cannot be subclassed (``@final``).
+_F64: TypeAlias = npt.NDArray[np.float64]
+_F32: TypeAlias = npt.NDArray[np.float32]
+_U16: TypeAlias = npt.NDArray[np.uint16]
+_I16: TypeAlias = npt.NDArray[np.int16]
+_I64: TypeAlias = npt.NDArray[np.int64]
 
 class DecodeError(ValueError): ...
 
 #: OpenEB's EventCD record (x u16 @0, y u16 @2, p i16 @4, t i64 @8; 16 bytes), defined by evcore::EventCd.
 EVENT_CD: np.dtype[np.void]
-Events = npt.NDArray[np.void]
+_Events: TypeAlias = npt.NDArray[np.void]
 
+#: The solver and front-end names ``Tracker`` accepts: the only spellings.
+SOLVERS: list[str]
+FRONTENDS: list[str]
+
+@final
 class Camera:
-    def __init__(
-        self,
+    def __new__(
+        cls,
         width: int,
         height: int,
         fx: float,
@@ -30,7 +58,7 @@ class Camera:
         cx: float,
         cy: float,
         dist: tuple[float, float, float, float, float] = ...,
-    ) -> None: ...
+    ) -> Camera: ...
     @staticmethod
     def imx636() -> Camera: ...
     width: int
@@ -40,13 +68,14 @@ class Camera:
     cx: float
     cy: float
     dist: tuple[float, float, float, float, float]
-    k: F64
+    k: _F64
     def rectified(self) -> Camera: ...
-    def project(self, points_c: F64, distort: bool = True) -> F64: ...
-    def rectify_pixels(self, pixels: F64) -> F64: ...
+    def project(self, points_c: _F64, distort: bool = True) -> _F64: ...
+    def rectify_pixels(self, pixels: _F64) -> _F64: ...
 
+@final
 class Estimate:
-    T_c_o: F64
+    T_c_o: _F64
     t_us: int
     seq: int
     step: str
@@ -55,12 +84,13 @@ class Estimate:
     n_events: int
     lost: bool
 
+@final
 class Tracker:
-    def __init__(
-        self,
+    def __new__(
+        cls,
         camera: Camera,
-        points_o: F64,
-        T_c_o: F64,
+        points_o: _F64,
+        T_c_o: _F64,
         solver: str = "edft+",
         frontend: str = "scarf",
         n_search: int = 4,
@@ -68,48 +98,51 @@ class Tracker:
         levels: int = 3,
         lm_iterations: int = 6,
         roi_margin_px: float = 48.0,
-        ingest_core_share: float | None = 0.5,
+        ingest_core_share: float | None = ...,  # 0.5
         max_ingest_rate: float | None = None,
         anti_flicker_hz: list[float] = ...,
-    ) -> None: ...
-    def update(self, events: Events) -> Estimate: ...
-    def ingest(self, events: Events) -> None: ...
+    ) -> Tracker: ...
+    def update(self, events: _Events) -> Estimate: ...
+    def ingest(self, events: _Events) -> None: ...
     def step(self, n: int = 1) -> Estimate: ...
     def start(self) -> None: ...
-    def push(self, events: Events) -> None: ...
+    def push(self, events: _Events) -> None: ...
     def latest(self) -> Estimate: ...
     def stop(self) -> None: ...
     @property
     def running(self) -> bool: ...
     @property
     def solver_thread_id(self) -> int | None: ...
-    def reset_pose(self, T_c_o: F64) -> None: ...
+    @property
+    def cycle_len(self) -> int: ...
+    def reset_pose(self, T_c_o: _F64) -> None: ...
     def reset_events(self) -> None: ...
     def stats(self) -> dict[str, float]: ...
-    def projected_points(self) -> F32: ...
-    def field(self) -> tuple[F32, tuple[int, int]]: ...
+    def projected_points(self) -> _F32: ...
+    def field(self) -> tuple[_F32, tuple[int, int]]: ...
     def active_mask(self) -> npt.NDArray[np.uint8]: ...
 
+@final
 class Mesh:
-    def __init__(
-        self,
-        vertices: F64,
+    def __new__(
+        cls,
+        vertices: _F64,
         faces: npt.NDArray[np.integer[Any]],
-        vertex_intensity: F64 | None = None,
-        uv: F64 | None = None,
-        texture: F32 | None = None,
+        vertex_intensity: _F64 | None = None,
+        uv: _F64 | None = None,
+        texture: _F32 | None = None,
         intensity: float = 0.7,
-    ) -> None: ...
+    ) -> Mesh: ...
     n_vertices: int
     n_faces: int
-    vertices: F64
+    vertices: _F64
     bounding_radius: float
-    centroid: F64
+    centroid: _F64
 
 def render(
     mesh: Mesh,
     camera: Camera,
-    T_c_o: F64,
+    T_c_o: _F64,
     roi: tuple[int, int, int, int] | None = None,
     ambient: float = 0.35,
     diffuse: float = 0.65,
@@ -118,50 +151,55 @@ def render(
 def extract_point_set(
     mesh: Mesh,
     camera: Camera,
-    T_c_o: F64,
+    T_c_o: _F64,
     max_points: int = 1000,
     seed: int = 0,
     depth_jump_m: float = 0.01,
     crease_deg: float = 30.0,
     texture_grad: float = 0.08,
-) -> tuple[F64, npt.NDArray[np.uint8]]: ...
-def euclidean_distance(mask: npt.NDArray[np.uint8]) -> F32: ...
+) -> tuple[_F64, npt.NDArray[np.uint8]]: ...
+def euclidean_distance(mask: npt.NDArray[np.uint8]) -> _F32: ...
 def distance_field(
-    mask: npt.NDArray[np.uint8], tau_px: float = 10.0, levels: int = 3, x0: int = 0, y0: int = 0
-) -> list[F32]: ...
+    mask: npt.NDArray[np.uint8], tau_px: float = ..., levels: int = 3, x0: int = 0, y0: int = 0
+) -> list[_F32]: ...
 
+@final
 class EventSimulator:
-    def __init__(self, width: int, height: int, preset: str = "imx636", seed: int = 0, **overrides: float) -> None: ...
+    def __new__(
+        cls, width: int, height: int, preset: str = "imx636", seed: int = 0, **overrides: float
+    ) -> EventSimulator: ...
     width: int
     height: int
-    time_us: int
+    #: None before the first frame.
+    time_us: int | None
     params: dict[str, float]
-    thresholds: tuple[F32, F32]
-    leak_rates_hz: F64
-    def reset(self, frame: F32, t_us: int) -> None: ...
-    def step(self, frame: F32, t_us: int) -> npt.NDArray[np.void]: ...
-    def step_roi(self, frame: F32, roi: tuple[int, int, int, int], t_us: int) -> npt.NDArray[np.void]: ...
+    thresholds: tuple[_F32, _F32]
+    leak_rates_hz: _F64
+    def reset(self, frame: _F32, t_us: int) -> None: ...
+    def step(self, frame: _F32, t_us: int) -> npt.NDArray[np.void]: ...
+    def step_roi(self, frame: _F32, roi: tuple[int, int, int, int], t_us: int) -> npt.NDArray[np.void]: ...
 
+@final
 class SimCamera:
     """The rendered event camera: object mesh (and optional occluder meshes, e.g. the robot arms)
     over a uniform or textured-plane background, the lens's distortion, the sensor model."""
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         camera: Camera,
         mesh: Mesh,
         preset: str = "imx636",
         seed: int = 0,
-        T_c_bg: F64 | None = None,
+        T_c_bg: _F64 | None = None,
         cell_m: float = 0.04,
         background_intensity: float = 0.1,
         ambient: float = 0.35,
         diffuse: float = 0.65,
         margin_px: int = 4,
         **overrides: float,
-    ) -> None: ...
+    ) -> SimCamera: ...
     def advance(
-        self, T_c_o: F64, t_us: int, T_c_bg: F64 | None = None, occluders: F64 | None = None
+        self, T_c_o: _F64, t_us: int, T_c_bg: _F64 | None = None, occluders: _F64 | None = None
     ) -> npt.NDArray[np.void]:
         """Render at ``t_us`` and step the sensor; ``occluders``: (N, 4, 4) poses of the N
         occluder meshes in the camera (required once occluders are set)."""
@@ -169,11 +207,11 @@ class SimCamera:
     def set_occluders(self, meshes: list[Mesh]) -> None:
         """Meshes drawn with the object and z-tested against it; the next frame is a full frame."""
         ...
-    def max_displacement_px(self, T_a: F64, T_b: F64) -> float: ...
-    def occluder_displacement_px(self, A: F64, B: F64) -> float:
+    def max_displacement_px(self, T_a: _F64, T_b: _F64) -> float: ...
+    def occluder_displacement_px(self, A: _F64, B: _F64) -> float:
         """Largest raw-pixel motion of the occluders' visible vertices between (N, 4, 4) pose stacks."""
         ...
-    def frame(self) -> F32: ...
+    def frame(self) -> _F32: ...
     n_occluders: int
     last_roi: tuple[int, int, int, int, bool] | None
     time_us: int | None
@@ -182,13 +220,26 @@ class SimCamera:
 
 def adaptive_dt_us(max_flow_px_per_s: float, lam: float = 0.5, min_rate_hz: float = 30.0) -> int: ...
 
+@final
 class RawReader:
-    def __init__(self, path: str) -> None: ...
+    def __new__(cls, path: str | os.PathLike[str]) -> RawReader: ...
     width: int
     height: int
     format: str
-    header: dict[str, str]
-    def read_n_events(self, n: int) -> Events | None: ...
-    def read_until(self, t_us: int) -> Events | None: ...
-    def read_all(self) -> Events: ...
+    header: list[tuple[str, str]]
+    def read_n_events(self, n: int) -> _Events | None: ...
+    def read_until(self, t_us: int) -> _Events | None: ...
+    def read_all(self) -> _Events: ...
     def peek_t(self) -> int | None: ...
+
+@final
+class Evt3Decoder:
+    def __new__(cls, width: int, height: int) -> Evt3Decoder: ...
+    def decode(self, data: bytes) -> _Events: ...
+    @property
+    def pending_bytes(self) -> int: ...
+
+@final
+class Evt3Encoder:
+    def __new__(cls, width: int, height: int) -> Evt3Encoder: ...
+    def encode(self, events: _Events) -> bytes: ...

@@ -22,6 +22,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from evservo import io
+from evservo.inputs import require_regular_file
 from evservo.io import EVENT_CD
 
 __all__ = [
@@ -215,8 +216,10 @@ def open_source(spec: str, speed: float = 1.0, delta_t_us: int = 1000) -> EventS
             raise ValueError(f"--replay-speed applies to files only, not to the live camera {spec!r}")
         return open_camera(LIVE_KINDS[kind.lower()], serial or None)
     path = Path(spec)
-    if not path.is_file():
+    try:
+        require_regular_file(path, "event file")
+    except FileNotFoundError:
         raise FileNotFoundError(
             f"no such event file: {path} (--camera takes prophesee[:SERIAL], dv[:SERIAL] or an event file)"
-        )
+        ) from None
     return ReplaySource(path, speed=speed, delta_t_us=delta_t_us)

@@ -4,15 +4,28 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import NoReturn
 
-from evservo.commands import bench, demo, info, servo, sim, track
+from evservo.commands import bench, calib, demo, info, ros, servo, sim, track
 
 # Each module registers its own subcommand; add new ones here.
-COMMANDS = (bench, demo, info, servo, sim, track)
+COMMANDS = (bench, calib, demo, info, ros, servo, sim, track)
+
+
+class UsageError(Exception):
+    """A command line argparse rejected (unknown option, invalid choice, wrong type)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors raised, so that they end like every other bad input: one
+    ``evservo: error: …`` line, exit code 2 (subcommand parsers are of this class too)."""
+
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(f"{message} (see {self.prog} --help)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="evservo", description=__doc__)
+    p = _Parser(prog="evservo", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
     for module in COMMANDS:
         module.add_parser(sub)
@@ -20,7 +33,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except UsageError as e:
+        print(f"evservo: error: {e}", file=sys.stderr)
+        return 2
     try:
         return args.func(args)
     except (ValueError, FileNotFoundError, RuntimeError) as e:

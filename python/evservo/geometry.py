@@ -75,3 +75,60 @@ def rotation_error_rad(T_a: np.ndarray, T_b: np.ndarray) -> float:
     """Geodesic angle between the rotations of two poses (radians)."""
     R = T_a[:3, :3].T @ T_b[:3, :3]
     return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def pose_errors(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translation distance (m) and geodesic angle (rad) between pose stacks ``A`` and ``B`` (N, 4, 4)."""
+    pos = np.linalg.norm(A[:, :3, 3] - B[:, :3, 3], axis=1)
+    tr = np.einsum("nji,nji->n", A[:, :3, :3], B[:, :3, :3])  # trace(Aᵀ B)
+    return pos, np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+
+
+def rotation_from_first_rad(T: np.ndarray) -> np.ndarray:
+    """Geodesic angle (rad) of each orientation in the stack ``T`` (N, 4, 4) from the first one."""
+    if not len(T):
+        return np.zeros(0)
+    tr = np.einsum("ji,nji->n", T[0, :3, :3], T[:, :3, :3])
+    return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+
+
+def rotvec(R: np.ndarray) -> np.ndarray:
+    """Rotation vector (axis × angle, radians, angle in [0, π]) of a 3×3 rotation matrix.
+
+    Closed form rather than scipy's ``Rotation`` because the controller runs it several times per
+    control period and scipy's object construction dominates at that size.
+    """
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])  # 2 sin θ · axis
+    c = float(np.clip((R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0, -1.0, 1.0))
+    s = 0.5 * float(np.linalg.norm(w))
+    theta = float(np.arctan2(s, c))
+    if theta < 1e-6:
+        return 0.5 * w * (1.0 + theta * theta / 6.0)
+    if theta < np.pi - 1e-4:
+        return w * (theta / (2.0 * s))
+    # Near π the antisymmetric part vanishes; the axis comes from the symmetric part (1−c)·u uᵀ.
+    S = (0.5 * (R + R.T) - c * np.eye(3)) / (1.0 - c)
+    i = int(np.argmax(np.diag(S)))
+    u = S[:, i] / np.sqrt(S[i, i])
+    if float(u @ w) < 0:
+        u = -u
+    return theta * u
+
+
+def rotmat(w: np.ndarray) -> np.ndarray:
+    """3×3 rotation matrix of a rotation vector (radians), by Rodrigues' formula."""
+    theta = float(np.linalg.norm(w))
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if theta < 1e-8:
+        return np.eye(3) + K + 0.5 * (K @ K)
+    return np.eye(3) + (np.sin(theta) / theta) * K + ((1.0 - np.cos(theta)) / theta**2) * (K @ K)
+
+
+def advance(T_w_x: np.ndarray, twist_w: np.ndarray, dt_s: float) -> np.ndarray:
+    """Pose of frame x after ``dt_s`` seconds (negative: before) at the constant world-frame twist
+    ``twist_w`` = (linear velocity of x's origin m/s, angular velocity rad/s): the origin moves along a
+    straight line and the frame turns about a fixed world axis through it."""
+    T = np.eye(4)
+    T[:3, :3] = rotmat(twist_w[3:] * dt_s) @ T_w_x[:3, :3]
+    T[:3, 3] = T_w_x[:3, 3] + twist_w[:3] * dt_s
+    return T

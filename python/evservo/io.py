@@ -31,6 +31,12 @@ Formats, chosen by file extension:
     without it reading raises :class:`DecodeError` naming the codec. Files compressed with any
     filter ``hdf5plugin`` provides (Blosc, Blosc2, Zstd, LZ4, Bitshuffle, ...) read.
 
+ROS 2 bags: a rosbag2 directory or a bare ``.mcap`` file
+    ``event_camera_msgs/EventPacket`` (``evt3``, ``mono``), ``dvs_msgs/EventArray`` or
+    ``prophesee_event_msgs/EventArray`` messages, through :mod:`evservo.bags` (see there for
+    times and geometry). ``topic=`` picks the event topic when there are several;
+    :func:`info` lists the topics. Written as EventPacket ``evt3`` (exact round trip).
+
 Not read: CSV, Prophesee DAT, ES (faery writes these).
 
 Bad input raises ``FileNotFoundError`` (missing file), :class:`DecodeError` (a ``ValueError``;
@@ -48,9 +54,11 @@ import h5py
 import hdf5plugin
 import numpy as np
 
-from evservo import aedat4
+from evservo import aedat4, bags
 from evservo._evcore import DecodeError, RawReader
-from evservo.events import EVENT_CD
+from evservo.events import EVENT_CD, from_columns, lossless_column
+from evservo.inputs import require_regular_file
+from evservo.outputs import atomic_path
 
 __all__ = ["EVENT_CD", "DecodeError", "info", "open_events", "read_events", "write_events"]
 
@@ -84,21 +92,20 @@ _AEDAT_SUFFIX = ".aedat4"
 _SUFFIXES = (".raw", _AEDAT_SUFFIX, ".npz", ".npy", *_H5_SUFFIXES)
 
 
-def _checked_path(path: str | os.PathLike) -> tuple[Path, str]:
+#: What :func:`_checked_path` calls a ROS bag (directory or ``.mcap`` file) in place of a suffix.
+_BAG = "rosbag2"
+
+
+def _checked_path(path: str | os.PathLike, topic: str | None = None) -> tuple[Path, str]:
     p = Path(path)
+    if bags.is_bag(p):
+        return p, _BAG
+    if topic is not None:
+        raise ValueError(f"topic= applies to ROS bags only, not {p}")
     suffix = p.suffix.lower()
     if suffix not in _SUFFIXES:
         raise ValueError(f"unsupported event file extension {suffix!r} for {p} (supported: {', '.join(_SUFFIXES)})")
-    if not p.is_file():
-        raise FileNotFoundError(f"no such event file: {p}")
-    return p, suffix
-
-
-def _columns_to_cd(cols: dict) -> np.ndarray:
-    out = np.empty(len(cols["t"]), dtype=EVENT_CD)
-    for name in EVENT_CD.names:
-        out[name] = cols[name]
-    return out
+    return require_regular_file(p, "event file"), suffix
 
 
 def _as_cd(events: np.ndarray) -> np.ndarray:
@@ -111,7 +118,7 @@ def _as_cd(events: np.ndarray) -> np.ndarray:
         return events
     out = np.empty(len(events), dtype=EVENT_CD)
     for name in EVENT_CD.names:
-        out[name] = events[name]
+        out[name] = lossless_column(name, events[name])
     return out
 
 
@@ -121,13 +128,45 @@ def _inferred_geometry(events: np.ndarray) -> tuple[int, int]:
     return int(events["x"].max()) + 1, int(events["y"].max()) + 1
 
 
+#: Largest sensor side a file may declare: x and y are u16 pixel indices.
+MAX_SENSOR_SIDE = 1 << 16
+
+
+def _stored_geometry(p: Path, width: object, height: object) -> tuple[int, int]:
+    """A file's declared sensor size as ints, refused unless both are whole numbers in
+    1..:data:`MAX_SENSOR_SIDE` (a negative or huge size would otherwise flow into allocations)."""
+
+    def side(v: object) -> int | None:
+        v = v.item() if isinstance(v, np.ndarray | np.generic) and np.ndim(v) == 0 else v
+        if isinstance(v, bytes | str):
+            text = v.decode() if isinstance(v, bytes) else v
+            return int(text) if text.strip().isdigit() else None
+        if isinstance(v, float) and v.is_integer():
+            return int(v)
+        return v if isinstance(v, int) and not isinstance(v, bool) else None
+
+    w, h = side(width), side(height)
+    if w is None or h is None or not (1 <= w <= MAX_SENSOR_SIDE and 1 <= h <= MAX_SENSOR_SIDE):
+        raise DecodeError(f"{p}: sensor size must be whole numbers in 1..{MAX_SENSOR_SIDE}, got {width}x{height}")
+    return w, h
+
+
+def _h5_columns(p: Path, g: h5py.Group, sl: slice = slice(None)) -> dict[str, np.ndarray]:
+    """The four event columns of our HDF5 layout (the slice ``sl`` of each), refused when their
+    lengths differ instead of being broadcast."""
+    lengths = {n: len(g[n]) for n in EVENT_CD.names}
+    if len(set(lengths.values())) != 1:
+        raise DecodeError(f"{p}: event columns differ in length: {lengths}")
+    return {n: g[n][sl] for n in EVENT_CD.names}
+
+
 def _load_npz(p: Path) -> tuple[np.ndarray, int, int]:
     try:
         with np.load(p, allow_pickle=False) as z:
-            events, width, height = z["events"], int(z["width"]), int(z["height"])
+            events, width, height = z["events"], z["width"], z["height"]
     except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
         raise DecodeError(f"{p}: corrupt or not an evservo .npz (events, width, height): {e}") from e
-    return _decoded_cd(p, events), width, height
+    return _decoded_cd(p, events), *_stored_geometry(p, width, height)
 
 
 def _decoded_cd(p: Path, events: np.ndarray) -> np.ndarray:
@@ -166,8 +205,8 @@ def _load_h5(p: Path) -> tuple[np.ndarray, int, int, bool, str]:
         with f:
             if "events" in f and isinstance(f["events"], h5py.Group):
                 g = f["events"]
-                events = _columns_to_cd({n: g[n][()] for n in EVENT_CD.names})
-                return events, int(g.attrs["width"]), int(g.attrs["height"]), False, "hdf5"
+                events = from_columns(_h5_columns(p, g))
+                return events, *_stored_geometry(p, g.attrs["width"], g.attrs["height"]), False, "hdf5"
             if "CD/events" in f:
                 ds = f["CD/events"]
                 _check_ecf(p, ds)
@@ -177,9 +216,9 @@ def _load_h5(p: Path) -> tuple[np.ndarray, int, int, bool, str]:
                     geometry = geometry.decode()
                 if isinstance(geometry, str) and "x" in geometry:
                     w, h = geometry.split("x", 1)
-                    return events, int(w), int(h), False, "metavision-hdf5"
+                    return events, *_stored_geometry(p, w, h), False, "metavision-hdf5"
                 if "width" in f.attrs and "height" in f.attrs:
-                    return events, int(f.attrs["width"]), int(f.attrs["height"]), False, "metavision-hdf5"
+                    return events, *_stored_geometry(p, f.attrs["width"], f.attrs["height"]), False, "metavision-hdf5"
                 return events, *_inferred_geometry(events), True, "metavision-hdf5"
     except DecodeError:
         raise
@@ -230,7 +269,9 @@ def _h5_blocks(p: Path, n: int) -> Iterator[np.ndarray]:
             g = f["events"]
             total = len(g["t"])
             for start in range(0, total, n):
-                yield _columns_to_cd({name: g[name][start : start + n] for name in EVENT_CD.names})
+                yield from_columns(_h5_columns(p, g, slice(start, start + n)))
+    except DecodeError:
+        raise
     except (KeyError, OSError, ValueError, TypeError) as e:
         raise DecodeError(f"{p}: unreadable event HDF5: {e}") from e
 
@@ -293,7 +334,7 @@ def _array_time_slices(events: np.ndarray, delta_t_us: int) -> Iterator[np.ndarr
 
 
 def open_events(
-    path: str | os.PathLike, delta_t_us: int | None = None, n_events: int | None = None
+    path: str | os.PathLike, delta_t_us: int | None = None, n_events: int | None = None, topic: str | None = None
 ) -> Iterator[np.ndarray]:
     """Iterate over an event file in EVENT_CD slices, like OpenEB's ``EventsIterator``.
 
@@ -301,7 +342,8 @@ def open_events(
     of that many events, the last one shorter). Time slices lie on a grid of multiples of
     ``delta_t_us`` starting with the one holding the first event; each slice ends before the first
     event at or after its end, in stream order, and slices without events inside the recording
-    are yielded empty. The slices concatenate to :func:`read_events`.
+    are yielded empty. The slices concatenate to :func:`read_events`. ``topic`` picks the event
+    topic of a ROS bag.
     """
     if delta_t_us is not None and n_events is not None:
         raise ValueError("give only one of delta_t_us and n_events")
@@ -312,7 +354,12 @@ def open_events(
         delta_t_us = 10_000 if delta_t_us is None else delta_t_us
         if delta_t_us < 1:
             raise ValueError(f"delta_t_us must be >= 1, got {delta_t_us}")
-    p, suffix = _checked_path(path)
+    p, suffix = _checked_path(path, topic)
+    if suffix == _BAG:
+        blocks = bags.event_blocks(p, topic)[1]
+        if n_events is not None:
+            return _rechunked(blocks, n_events)
+        return _block_time_slices(blocks, delta_t_us)
     if suffix == ".raw":
         if n_events is not None:
             return _raw_blocks(p, n_events)
@@ -333,9 +380,12 @@ def open_events(
     return _array_time_slices(events, delta_t_us)
 
 
-def read_events(path: str | os.PathLike) -> np.ndarray:
-    """All events of a file as one EVENT_CD array, in stream order."""
-    p, suffix = _checked_path(path)
+def read_events(path: str | os.PathLike, topic: str | None = None) -> np.ndarray:
+    """All events of a file as one EVENT_CD array, in stream order (``topic``: see :func:`open_events`)."""
+    p, suffix = _checked_path(path, topic)
+    if suffix == _BAG:
+        blocks = list(bags.event_blocks(p, topic)[1])
+        return np.concatenate(blocks, dtype=EVENT_CD) if blocks else np.empty(0, dtype=EVENT_CD)
     if suffix == ".raw":
         return RawReader(p).read_all()
     if suffix == _AEDAT_SUFFIX:
@@ -344,14 +394,18 @@ def read_events(path: str | os.PathLike) -> np.ndarray:
     return _load_array(p, suffix)[0]
 
 
-def info(path: str | os.PathLike) -> dict:
+def info(path: str | os.PathLike, topic: str | None = None) -> dict:
     """Format, sensor size and extent of an event file (RAW and AEDAT4 files are decoded once to count).
 
     Keys: ``format`` ("EVT2", "EVT3", "aedat4", "npz", "npy", "hdf5" or "metavision-hdf5"),
     ``width``, ``height`` (pixels), ``n_events``, ``t_first_us``, ``t_last_us`` (None when empty) and
     ``geometry_inferred`` (True when the size was taken as max+1 of the coordinates).
+    ROS bags (format "rosbag2", decoded once to count) also report the event ``topic`` read,
+    its message ``type`` and ``encoding``, and ``topics`` (every topic's type and message count).
     """
-    p, suffix = _checked_path(path)
+    p, suffix = _checked_path(path, topic)
+    if suffix == _BAG:
+        return _bag_info(p, topic)
     if suffix == ".raw":
         reader = RawReader(p)
         n, t_first, t_last = 0, None, None
@@ -387,6 +441,32 @@ def info(path: str | os.PathLike) -> dict:
     )  # fmt: skip
 
 
+def _bag_info(p: Path, topic: str | None) -> dict:
+    meta, blocks = bags.event_blocks(p, topic)
+    n, t_first, t_last = 0, None, None
+    for cols in blocks:
+        if len(cols["t"]):
+            t_first = int(cols["t"][0]) if t_first is None else t_first
+            t_last = int(cols["t"][-1])
+            n += len(cols["t"])
+    return dict(
+        format=_BAG, width=meta["width"], height=meta["height"], n_events=n, t_first_us=t_first,
+        t_last_us=t_last, geometry_inferred=False, topic=meta["topic"], type=meta["type"],
+        encoding=meta["encoding"], topics=meta["topics"],
+    )  # fmt: skip
+
+
+#: Root attribute of a simulated recording (:mod:`evservo.sim.record`): 0 while it is written, 1 as
+#: its last write. Recordings from before it existed lack it and count as complete.
+RECORDING_COMPLETE_ATTR = "evservo_complete"
+
+
+def check_complete_recording(p: Path, f: h5py.File) -> None:
+    """Raise :class:`DecodeError` for a simulated recording whose writer stopped before its last write."""
+    if f.attrs.get("evservo_recording", 0) and not f.attrs.get(RECORDING_COMPLETE_ATTR, 1):
+        raise DecodeError(f"{p} is an incomplete recording (its `evservo sim record` was interrupted): record it again")
+
+
 def _h5_info(p: Path) -> dict:
     """:func:`info` of our HDF5 layout from the dataset shapes and end points; a simulated recording
     (:mod:`evservo.sim.record`) also reports ``object``, ``trajectory``, ``duration_s`` and ``has_gt``."""
@@ -395,38 +475,63 @@ def _h5_info(p: Path) -> dict:
             g = f["events"]
             t = g["t"]
             n = len(t)
+            _h5_columns(p, g, slice(0, 0))
+            width, height = _stored_geometry(p, g.attrs["width"], g.attrs["height"])
             out = dict(
-                format="hdf5", width=int(g.attrs["width"]), height=int(g.attrs["height"]), n_events=n,
+                format="hdf5", width=width, height=height, n_events=n,
                 t_first_us=int(t[0]) if n else None, t_last_us=int(t[n - 1]) if n else None, geometry_inferred=False,
             )  # fmt: skip
+            check_complete_recording(p, f)
             if f.attrs.get("evservo_recording", 0):
                 out.update(
                     object=str(f.attrs["object"]), trajectory=str(f.attrs["trajectory"]),
                     duration_s=float(f.attrs["duration_s"]), has_gt="gt/T_c_o" in f,
                 )  # fmt: skip
             return out
+    except DecodeError:
+        raise
     except (KeyError, OSError, ValueError, TypeError) as e:
         raise DecodeError(f"{p}: unreadable event HDF5: {e}") from e
 
 
-def write_events(path: str | os.PathLike, events: np.ndarray, width: int, height: int) -> None:
-    """Write events to ``.npz``, ``.npy`` or ``.h5``/``.hdf5`` (our layouts, see the module doc).
+def write_events(
+    path: str | os.PathLike, events: np.ndarray, width: int, height: int, topic: str = bags.DEFAULT_TOPIC
+) -> None:
+    """Write events to ``.npz``, ``.npy`` or ``.h5``/``.hdf5`` (our layouts, see the module doc), or
+    to a ROS 2 bag on ``topic``: a bare ``.mcap`` file, or a new rosbag2 directory when ``path``
+    has no suffix (see :func:`evservo.bags.write`).
 
     Every event must lie on the ``width`` x ``height`` sensor. ``.npy`` does not store the size.
     """
     p = Path(path)
     suffix = p.suffix.lower()
-    if suffix not in (".npz", ".npy", *_H5_SUFFIXES):
-        raise ValueError(f"cannot write {suffix!r} event files (supported: .npz, .npy, .h5, .hdf5)")
+    if suffix not in (".npz", ".npy", *_H5_SUFFIXES, ".mcap", ""):
+        raise ValueError(
+            f"cannot write {suffix!r} event files (supported: .npz, .npy, .h5, .hdf5, .mcap, a rosbag2 directory)"
+        )
     events = _as_cd(np.asarray(events))
-    if width < 1 or height < 1:
-        raise ValueError(f"sensor size must be positive, got {width}x{height}")
+    if not (1 <= width <= MAX_SENSOR_SIDE and 1 <= height <= MAX_SENSOR_SIDE):
+        raise ValueError(f"sensor size must be in 1..{MAX_SENSOR_SIDE} per side, got {width}x{height}")
     if len(events) and (int(events["x"].max()) >= width or int(events["y"].max()) >= height):
         raise ValueError(f"events reach beyond the {width}x{height} sensor")
+    if suffix in (".mcap", ""):
+        # Written into a temporary directory beside the target, moved into place when complete.
+        bags.write(p, events, width, height, topic)
+        return
+    if p.is_dir():
+        raise ValueError(f"{p} is a directory; give an event file name")
+    # To a temporary file beside it, renamed when complete: an interrupted write keeps the old file.
+    with atomic_path(p) as tmp:
+        _write_to(tmp, suffix, events, width, height)
+
+
+def _write_to(p: Path, suffix: str, events: np.ndarray, width: int, height: int) -> None:
     if suffix == ".npz":
-        np.savez_compressed(p, events=events, width=np.int64(width), height=np.int64(height))
+        with p.open("wb") as fh:  # a file object: numpy would append ".npz" to a name lacking it
+            np.savez_compressed(fh, events=events, width=np.int64(width), height=np.int64(height))
     elif suffix == ".npy":
-        np.save(p, events)
+        with p.open("wb") as fh:
+            np.save(fh, events)
     else:
         with h5py.File(p, "w") as f:
             g = f.create_group("events")

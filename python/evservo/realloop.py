@@ -48,28 +48,42 @@ concept is the same (``completed``, ``ended``, ``servo_pos_rms_mm``, ``servo_rot
 
 from __future__ import annotations
 
-import csv
 import gc
-import json
 import logging
 import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from evservo import _evcore, events, geometry
-from evservo.control import CartesianLimits, Pbvs
+from evservo.control import Pbvs
+from evservo.geometry import pose_errors, rotation_from_first_rad
+from evservo.limits import CartesianLimits
+from evservo.outputs import make_out_dir
 from evservo.robots.base import Arm, shift_twist
-from evservo.sim.episode import camera_rotation_rad, pose_errors, rms
+from evservo.robots.gated import GatedArm
+from evservo.robots.safety import SafetyGate
+from evservo.runtime.metrics import rms
+from evservo.runtime.record import CycleRecord
+from evservo.runtime.report import plot_motion, write_log, write_summary
+from evservo.runtime.watchdog import WatchdogSpell
 
-__all__ = ["RealLoopConfig", "RealLoopResult", "TrackingError", "run_real_loop", "summarize", "write_outputs"]
+__all__ = [
+    "RealLoopConfig", "RealLoopResult", "TrackingError", "WatchdogSpell", "run_real_loop", "summarize", "write_outputs",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
+
+#: Most control cycles one run records (preallocated, ~0.4 kB each: 1 h at 500 Hz is ~0.7 GB).
+MAX_CYCLES = 1_800_000
+
+#: The files :func:`write_outputs` writes into the run's directory.
+OUTPUTS = ("summary.json", "log.csv", "motion.png")
 
 
 class TrackingError(RuntimeError):
@@ -119,20 +133,15 @@ class RealLoopConfig:
             raise ValueError(f"settle_s must be finite and >= 0, got {self.settle_s}")
         if self.rate_hz > 2000:
             raise ValueError(f"rate_hz above 2000 Hz is beyond any arm's command rate, got {self.rate_hz}")
+        if self.max_cycles() > MAX_CYCLES:
+            raise ValueError(
+                f"duration {self.duration_s:g} s at {self.rate_hz:g} Hz is {self.max_cycles()} control cycles; the "
+                f"per-cycle record holds at most {MAX_CYCLES} (1 h at 500 Hz): run shorter sessions"
+            )
 
-
-@dataclass(frozen=True)
-class WatchdogSpell:
-    """A watchdog stop, with the sim episode's keys (seconds since servo start): ``last_pose_s`` the
-    time stamp of the last accepted pose, ``start_s`` the first braking cycle, ``zero_s`` the first
-    cycle commanding exactly zero (None if the loop ended before), ``end_s`` None (the real loop
-    does not resume); ``reason`` why it fired."""
-
-    start_s: float
-    last_pose_s: float
-    zero_s: float | None
-    end_s: float | None
-    reason: str
+    def max_cycles(self) -> int:
+        """Control cycles the run may record: servoing plus the longest braking."""
+        return int(np.ceil((self.duration_s + self.max_brake_s) * self.rate_hz)) + 2
 
 
 @dataclass
@@ -228,8 +237,10 @@ class _CameraPump(threading.Thread):
             self.join(timeout_s)
 
 
-def _gate_of(arm: Arm) -> Any:
-    return getattr(arm, "gate", None)
+def _gate_of(arm: Arm) -> SafetyGate | None:
+    """The arm's safety gate, whose limits bound the controller and whose output is logged; an arm
+    without one (a bare :class:`Arm`) is commanded as it is."""
+    return arm.gate if isinstance(arm, GatedArm) else None
 
 
 def run_real_loop(
@@ -264,18 +275,16 @@ def run_real_loop(
         limits=gate.limits if gate is not None else CartesianLimits(), stale_after_s=cfg.stale_after_s,
         max_jump_m=cfg.max_jump_m, max_jump_rad=cfg.max_jump_rad,
     )  # fmt: skip
-    n_max = int(np.ceil((cfg.duration_s + cfg.max_brake_s) * cfg.rate_hz)) + 2
-    rec = {
-        "t_s": np.empty(n_max), "T_w_c": np.empty((n_max, 4, 4)), "T_c_o_est": np.empty((n_max, 4, 4)),
-        "est_t_s": np.empty(n_max), "v_cmd_w": np.empty((n_max, 6)), "v_sent_w": np.empty((n_max, 6)),
-        "cycle_s": np.empty(n_max), "late_s": np.empty(n_max), "est_t_us": np.empty(n_max, np.int64),
-    }  # fmt: skip
+    rec = CycleRecord(
+        cfg.max_cycles(),
+        t_s=(), T_w_c=(4, 4), T_c_o_est=(4, 4), est_t_s=(), v_cmd_w=(6,), v_sent_w=(6,), cycle_s=(), late_s=(),
+        est_t_us=((), np.int64),
+    )  # fmt: skip
     states: list[str] = []
     spells: list[WatchdogSpell] = []
     ended, completed, interrupted, error = "not started", False, False, None
-    n = missed = 0
-    t0 = clock()
-    des = None
+    des: np.ndarray | None = None
+    cadence: _Cadence | None = None
     switch, gc_was_enabled = sys.getswitchinterval(), gc.isenabled()
     pump = _CameraPump(source, tracker, cfg.speed, clock)
     tracker_t0 = clock()
@@ -285,34 +294,12 @@ def run_real_loop(
         # Short GIL slices: the camera thread must not hold the control loop up for 5 ms at a time.
         sys.setswitchinterval(min(switch, 0.0005))
         pump.start()
-        # -- settle: track, arm still -------------------------------------------------------
-        # A camera (or a file being opened) takes a while to deliver its first events; the settle
-        # time counts from the first pose, so a slow start is not mistaken for a blind tracker.
-        say(f"waiting up to {cfg.start_timeout_s:.1f} s for the first events")
-        _wait(
-            clock, clock() + cfg.start_timeout_s, pump, lambda: pump.offset_s is not None and tracker.latest().seq > 0
-        )
-        if pump.offset_s is None or tracker.latest().seq == 0:
-            raise TrackingError(f"no pose {cfg.start_timeout_s} s after start: no events reached the tracker")
-        say(f"settling: tracking for {cfg.settle_s:.2f} s before moving")
-        _wait(clock, clock() + cfg.settle_s, pump, lambda: False)
-        if pump.error is not None:
-            raise pump.error
-        est = tracker.latest()
-        if est.lost:
-            raise TrackingError(
-                f"the tracker lost the object while settling (inlier fraction {est.inlier_fraction:.2f}): "
-                "check the initial pose (--init-pose) and the model"
-            )
+        est = _settle(tracker, pump, cfg, clock, say)
         t0 = clock()
-        last_t_us = int(est.t_us)
-        last_seq = est.seq
-        pose_t = min(pump.host_time(last_t_us) - t0, 0.0)
-        T_w_c = arm.T_w_e() @ T_e_c
-        pbvs.start(T_w_c, est.T_c_o, t_s=pose_t)
+        feed = _PoseFeed(tracker, pump, t0, est)
+        pbvs.start(arm.T_w_e() @ T_e_c, est.T_c_o, t_s=feed.t_s)
         des = est.T_c_o.copy() if T_c_o_des is None else geometry.as_pose(T_c_o_des, "T_c_o_des")
-        pbvs.T_c_o_des = des.copy()
-        est_T, est_t, last_accepted_t, est_t_us = est.T_c_o.copy(), pose_t, pose_t, last_t_us
+        pbvs.set_desired(des)
         if T_c_o_des is not None:
             d_mm = geometry.translation_error_m(des, est.T_c_o) * 1e3
             d_deg = np.rad2deg(geometry.rotation_error_rad(des, est.T_c_o))
@@ -322,41 +309,20 @@ def run_real_loop(
         # and the loop makes no reference cycles. Collected after the arm has stopped.
         gc.collect()
         gc.disable()
+        cadence = _Cadence(clock, t0, period)
         stopping: str | None = None  # why the loop is braking to its end
-        stop_t = 0.0
-        v_cmd = np.zeros(6)
-        k = 0
-        while True:
-            deadline = t0 + k * period
-            now = clock()
-            if now < deadline:
-                time.sleep(deadline - now)
-                now = clock()
+        stop_t, v_cmd, last_accepted_t = 0.0, np.zeros(6), feed.t_s
+        while not rec.full:
+            now, deadline = cadence.wait()
             t = now - t0
-            if n >= n_max:
-                stopping = stopping or "duration"
-                break
             # -- what ends the run --------------------------------------------------------
             if pump.error is not None:
                 raise RuntimeError(f"event source failed: {pump.error}") from pump.error
-            if stopping is None and t >= cfg.duration_s:
-                stopping, stop_t = "duration", t
+            if stopping is None and (t >= cfg.duration_s or pump.ended):
+                stopping, stop_t = ("duration" if t >= cfg.duration_s else "end of recording"), t
                 pbvs.stop()
-            if stopping is None and pump.ended:
-                stopping, stop_t = "end of recording", t
-                pbvs.stop()
-            # -- pose ---------------------------------------------------------------------
-            est = tracker.latest()
-            pose, p_t = None, None
-            if est.seq != last_seq:
-                last_seq = est.seq
-                if not est.lost and est.t_us > last_t_us:
-                    last_t_us = int(est.t_us)
-                    host = pump.host_time(last_t_us)
-                    p_t = min(max(host - t0, est_t + 1e-6), t)
-                    pose, est_T, est_t = est.T_c_o, est.T_c_o.copy(), p_t
-                    est_t_us = last_t_us
-            # -- control ------------------------------------------------------------------
+            # -- pose and control ---------------------------------------------------------
+            pose, p_t = feed.poll(t)
             T_w_e = arm.T_w_e()
             T_w_c = T_w_e @ T_e_c
             p_e, p_c = T_w_e[:3, 3], T_w_c[:3, 3]
@@ -366,12 +332,7 @@ def run_real_loop(
             if cmd.state == "ok" and pose is not None:
                 last_accepted_t = p_t
             if stopping is None and (cmd.watchdog or cmd.state == "rejected"):
-                if cmd.state == "rejected" and not cmd.watchdog:
-                    why = f"pose jump: {cmd.reason}"
-                elif est.lost:
-                    why = f"no fresh pose for {cfg.stale_after_s} s: the tracker reports the object lost"
-                else:
-                    why = f"no fresh pose for {cfg.stale_after_s} s"
+                why = _watchdog_reason(cmd, feed.lost, cfg.stale_after_s)
                 stopping, stop_t = f"watchdog: {why}", t
                 spells.append(WatchdogSpell(t, last_accepted_t, None, None, why))
                 log.info("watchdog at %.3f s: %s; braking to a stop", t, why)
@@ -379,30 +340,20 @@ def run_real_loop(
                 pbvs.stop()
             v_cmd = cmd.v_c_w
             arm.command_twist(shift_twist(v_cmd, p_c, p_e), period)
-            # -- record ---------------------------------------------------------------------
-            rec["t_s"][n], rec["T_w_c"][n], rec["T_c_o_est"][n], rec["est_t_s"][n] = t, T_w_c, est_T, est_t
-            rec["v_cmd_w"][n], rec["est_t_us"][n] = v_cmd, est_t_us
-            rec["v_sent_w"][n] = gate.last_sent if gate is not None else shift_twist(v_cmd, p_c, p_e)
-            rec["late_s"][n] = now - deadline
-            states.append(cmd.state)
             done_t = clock()
-            rec["cycle_s"][n] = done_t - now
-            n += 1
+            rec.add(
+                t_s=t, T_w_c=T_w_c, T_c_o_est=feed.T_c_o, est_t_s=feed.t_s, v_cmd_w=v_cmd, est_t_us=feed.t_us,
+                v_sent_w=gate.last_sent if gate is not None else shift_twist(v_cmd, p_c, p_e),
+                late_s=now - deadline, cycle_s=done_t - now,
+            )  # fmt: skip
+            states.append(cmd.state)
             if stopping is not None:
                 at_rest = not np.any(v_cmd)
                 if at_rest and spells and spells[-1].zero_s is None and stopping.startswith("watchdog"):
-                    s = spells[-1]
-                    spells[-1] = WatchdogSpell(s.start_s, s.last_pose_s, t, None, s.reason)
+                    spells[-1] = replace(spells[-1], zero_s=t)
                 if at_rest or t - stop_t >= cfg.max_brake_s:
                     break
-            # -- next deadline: skip (and count) the ones already past ------------------------
-            # A cycle less than half a period late runs at once; later ones are dropped.
-            k += 1
-            behind = done_t - (t0 + k * period)
-            if behind > 0.5 * period:
-                skip = int(np.ceil(behind / period - 0.5))
-                missed += skip
-                k += skip
+            cadence.advance(done_t)
         ended = stopping or "duration"
         completed = stopping in ("duration", "end of recording")
     except KeyboardInterrupt:
@@ -414,7 +365,7 @@ def run_real_loop(
     except Exception as err:
         ended, error = f"error: {err}", str(err)
         log.error("real loop: %s; stopping the arm", err)
-        if n == 0 and des is None:
+        if rec.n == 0 and des is None:
             raise  # nothing ran: the caller reports the error
     finally:
         sys.setswitchinterval(switch)
@@ -429,19 +380,19 @@ def run_real_loop(
             tracker.stop()
         finally:
             tracker_t1 = clock()
-    servo_s = float(rec["t_s"][n - 1]) if n else 0.0
+    recorded = rec.arrays()
     stats = tracker.stats()
     return RealLoopResult(
         config=cfg,
         T_c_o_des=des if des is not None else np.eye(4),
-        **{key: v[:n].copy() for key, v in rec.items()},
+        **recorded,
         state=states,
         ended=ended,
         completed=completed,
         interrupted=interrupted,
         error=error,
-        servo_s=servo_s,
-        missed_cycles=missed,
+        servo_s=float(recorded["t_s"][-1]) if rec.n else 0.0,
+        missed_cycles=cadence.missed if cadence is not None else 0,
         watchdog=spells,
         tracker_steps={"lm": int(stats.get("lm_steps", 0)), "search": int(stats.get("search_steps", 0))},
         tracker_s=max(tracker_t1 - tracker_t0, 1e-9),
@@ -454,7 +405,95 @@ def run_real_loop(
     )
 
 
-def _gate_summary(gate: Any) -> dict[str, Any]:
+def _settle(tracker: Any, pump: _CameraPump, cfg: RealLoopConfig, clock: Callable[[], float], say: Callable) -> Any:
+    """Wait for the first pose (up to ``start_timeout_s``), then track ``settle_s`` with the arm still;
+    return the tracker's estimate then. A camera (or a file being opened) takes a while to deliver its
+    first events, so the settle time counts from the first pose: a slow start is not a blind tracker."""
+    say(f"waiting up to {cfg.start_timeout_s:.1f} s for the first events")
+    _wait(clock, clock() + cfg.start_timeout_s, pump, lambda: pump.offset_s is not None and tracker.latest().seq > 0)
+    if pump.offset_s is None or tracker.latest().seq == 0:
+        raise TrackingError(f"no pose {cfg.start_timeout_s} s after start: no events reached the tracker")
+    say(f"settling: tracking for {cfg.settle_s:.2f} s before moving")
+    _wait(clock, clock() + cfg.settle_s, pump, lambda: False)
+    if pump.error is not None:
+        raise pump.error
+    est = tracker.latest()
+    if est.lost:
+        raise TrackingError(
+            f"the tracker lost the object while settling (inlier fraction {est.inlier_fraction:.2f}): "
+            "check the initial pose (--init-pose) and the model"
+        )
+    return est
+
+
+def _watchdog_reason(cmd: Any, lost: bool, stale_after_s: float) -> str:
+    if cmd.state == "rejected" and not cmd.watchdog:
+        return f"pose jump: {cmd.reason}"
+    if lost:
+        return f"no fresh pose for {stale_after_s} s: the tracker reports the object lost"
+    return f"no fresh pose for {stale_after_s} s"
+
+
+class _Cadence:
+    """Fixed-rate deadlines ``t0 + k·period`` on ``clock``. A cycle less than half a period late runs
+    at once; deadlines already further past are skipped and counted in :attr:`missed`, never made up."""
+
+    def __init__(self, clock: Callable[[], float], t0: float, period_s: float) -> None:
+        self.clock, self.t0, self.period_s = clock, t0, period_s
+        self.k = 0
+        self.missed = 0
+
+    def wait(self) -> tuple[float, float]:
+        """Sleep until the current deadline; return ``(now, deadline)``."""
+        deadline = self.t0 + self.k * self.period_s
+        now = self.clock()
+        if now < deadline:
+            time.sleep(deadline - now)
+            now = self.clock()
+        return now, deadline
+
+    def advance(self, done_t: float) -> None:
+        """Move to the next deadline after a cycle that finished at ``done_t``."""
+        self.k += 1
+        behind = done_t - (self.t0 + self.k * self.period_s)
+        if behind > 0.5 * self.period_s:
+            skip = int(np.ceil(behind / self.period_s - 0.5))
+            self.missed += skip
+            self.k += skip
+
+
+class _PoseFeed:
+    """The tracker's poses as the controller takes them: each new one once and not when the tracker
+    flags it lost, in time order, dated on the host clock in seconds since servo start (never after
+    the cycle's time, never before the previous pose). :attr:`T_c_o`, :attr:`t_s`, :attr:`t_us` hold
+    the newest pose passed on; :attr:`lost` is the tracker's flag at the last poll."""
+
+    def __init__(self, tracker: Any, pump: _CameraPump, t0: float, est: Any) -> None:
+        self.tracker, self.pump, self.t0 = tracker, pump, t0
+        self.seq = est.seq
+        self.t_us = int(est.t_us)
+        host = pump.host_time(self.t_us)
+        self.t_s = min(host - t0, 0.0) if host is not None else 0.0
+        self.T_c_o = est.T_c_o.copy()
+        self.lost = bool(est.lost)
+
+    def poll(self, t: float) -> tuple[np.ndarray | None, float | None]:
+        """The pose to hand the controller at cycle time ``t`` (s) and its time, or ``(None, None)``."""
+        est = self.tracker.latest()
+        self.lost = bool(est.lost)
+        if est.seq == self.seq:
+            return None, None
+        self.seq = est.seq
+        if est.lost or est.t_us <= self.t_us:
+            return None, None
+        self.t_us = int(est.t_us)
+        host = self.pump.host_time(self.t_us)
+        self.t_s = min(max(host - self.t0, self.t_s + 1e-6), t)
+        self.T_c_o = est.T_c_o.copy()
+        return self.T_c_o, self.t_s
+
+
+def _gate_summary(gate: SafetyGate | None) -> dict[str, Any]:
     """Counts from the gate's history (its last ``history.maxlen`` records)."""
     if gate is None:
         return {}
@@ -483,7 +522,7 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
         k_pos, k_rot = pose_errors(r.T_c_o_est, gt_at(gt[0], gt[1], r.est_t_us))
         gt_pos, gt_rot = rms(k_pos) * 1e3, float(np.rad2deg(rms(k_rot)))
     s_pos, s_rot = pose_errors(r.T_c_o_est, np.broadcast_to(r.T_c_o_des, (n, 4, 4)))
-    cam_rot = camera_rotation_rad(r.T_w_c)
+    cam_rot = rotation_from_first_rad(r.T_w_c)
     d_cam = r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3] if n else np.zeros((0, 3))
     n_steps = sum(r.tracker_steps.values())
     nominal = r.config.rate_hz * r.servo_s
@@ -535,11 +574,9 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
     through (m/s, deg/s), that twist's components in the robot base frame (in a dry run: what would
     have been sent — check its directions before the first real run), cycle time and lateness (ms),
     the controller's state."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_out_dir(out_dir, stale=OUTPUTS)
     paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
     summary = summary if summary is not None else summarize(r)
-    paths["summary"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
     n = len(r.t_s)
     every = max(1, round(r.config.rate_hz / r.config.log_rate_hz))
     keep = np.zeros(n, bool)
@@ -555,49 +592,15 @@ def write_outputs(r: RealLoopResult, out_dir: str | Path, summary: dict | None =
         "sent_vx_mps", "sent_vy_mps", "sent_vz_mps", "sent_wx_dps", "sent_wy_dps", "sent_wz_dps", "cycle_ms",
         "late_ms", "state",
     ]  # fmt: skip
-    with paths["log"].open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        for j, i in enumerate(k):
-            row = [
-                r.t_s[i], *r.T_w_c[i, :3, 3], *r.T_c_o_est[i, :3, 3], s_pos[j] * 1e3, np.rad2deg(s_rot[j]),
-                (r.t_s[i] - r.est_t_s[i]) * 1e3, np.linalg.norm(r.v_cmd_w[i, :3]),
-                np.rad2deg(np.linalg.norm(r.v_cmd_w[i, 3:])), np.linalg.norm(r.v_sent_w[i, :3]),
-                np.rad2deg(np.linalg.norm(r.v_sent_w[i, 3:])), *r.v_sent_w[i, :3], *np.rad2deg(r.v_sent_w[i, 3:]),
-                r.cycle_s[i] * 1e3, r.late_s[i] * 1e3,
-            ]  # fmt: skip
-            w.writerow([f"{v:.6g}" for v in row] + [r.state[i]])
-    plot_motion(r, paths["motion"])
+    cols = np.column_stack([
+        r.t_s[k], r.T_w_c[k, :3, 3], r.T_c_o_est[k, :3, 3], s_pos * 1e3, np.rad2deg(s_rot),
+        (r.t_s[k] - r.est_t_s[k]) * 1e3, np.linalg.norm(r.v_cmd_w[k, :3], axis=1),
+        np.rad2deg(np.linalg.norm(r.v_cmd_w[k, 3:], axis=1)), np.linalg.norm(r.v_sent_w[k, :3], axis=1),
+        np.rad2deg(np.linalg.norm(r.v_sent_w[k, 3:], axis=1)), r.v_sent_w[k, :3], np.rad2deg(r.v_sent_w[k, 3:]),
+        r.cycle_s[k] * 1e3, r.late_s[k] * 1e3,
+    ]) if len(k) else np.zeros((0, len(header) - 1))  # fmt: skip
+    write_log(paths["log"], header, cols, [r.state[i] for i in k])
+    title = f"{r.meta.get('robot', 'arm')}, {r.meta.get('camera', 'camera')}: {r.ended}"
+    plot_motion(paths["motion"], r.t_s, r.T_w_c, r.T_w_c @ r.T_c_o_est, title, spells=r.watchdog)
+    write_summary(paths["summary"], summary)  # last: a summary.json is there only when the other outputs are
     return paths
-
-
-def plot_motion(r: RealLoopResult, path: str | Path) -> None:
-    """The paper's Fig. 5 as far as a real run can draw it: camera and object (camera pose · estimate)
-    displacement along each world axis from servo start (mm), the camera's rotation (deg), and the
-    watchdog spells shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = r.t_s
-    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(8, 8), constrained_layout=True)
-    if len(t):
-        d_cam = (r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3]) * 1e3
-        recon = r.T_w_c @ r.T_c_o_est
-        d_obj = (recon[:, :3, 3] - recon[:1, :3, 3]) * 1e3
-        for i, name in enumerate("xyz"):
-            axes[i].plot(t, d_cam[:, i], color="tab:blue", label="camera")
-            axes[i].plot(t, d_obj[:, i], color="tab:orange", ls=":", label="object (camera · estimate)")
-            axes[i].set_ylabel(f"{name} (mm)")
-        axes[3].plot(t, np.rad2deg(camera_rotation_rad(r.T_w_c)), color="tab:blue")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-        for w in r.watchdog:
-            ax.axvspan(w.start_s, w.zero_s if w.zero_s is not None else w.start_s, color="red", alpha=0.2)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[3].set_ylabel("camera rot. (deg)")
-    axes[3].set_xlabel("time since servo start (s)")
-    fig.suptitle(f"{r.meta.get('robot', 'arm')}, {r.meta.get('camera', 'camera')}: {r.ended}", fontsize=10)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -19,8 +19,9 @@ from evservo.events import as_event_cd
 from evservo.geometry import as_pose
 from evservo.models import load_object, to_core_mesh
 
-SOLVERS = ("edft+", "edopts", "edft")
-FRONTENDS = ("scarf", "fixed-count", "eros")
+#: The solver and front-end names the core accepts (parsed in Rust only; these lists come from it).
+SOLVERS: tuple[str, ...] = tuple(_evcore.SOLVERS)
+FRONTENDS: tuple[str, ...] = tuple(_evcore.FRONTENDS)
 
 PRIORITIES = ("normal", "high")
 #: SCHED_FIFO priority of the solver thread with priority="high": above ordinary real-time helpers
@@ -89,10 +90,6 @@ class Tracker:
         max_ingest_rate: float | None = None,
         anti_flicker_hz: float | Iterable[float] | None = None,
     ) -> None:
-        if solver not in SOLVERS:
-            raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
-        if frontend not in FRONTENDS:
-            raise ValueError(f"unknown front-end {frontend!r}; choose one of {FRONTENDS}")
         T = as_pose(T_c_o, "T_c_o")
         self.camera = camera
         self.solver = solver
@@ -115,6 +112,12 @@ class Tracker:
     def step(self, n: int = 1) -> Estimate:
         """Synchronous: run ``n`` single updates (one LM or one search step each) on the current events."""
         return self._core.step(n)
+
+    @property
+    def cycle_len(self) -> int:
+        """Steps per cycle (1 LM + N search for edft+, N + 1 steps otherwise); the thread rests after
+        this many steps without new events. Read it before :meth:`start`."""
+        return self._core.cycle_len
 
     def start(self, cpu: int | Iterable[int] | None = None, priority: str = "normal") -> str:
         """Start the solver thread; then feed it with ``push`` and read ``latest``.

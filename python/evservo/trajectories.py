@@ -13,6 +13,7 @@ Kinds (peak speed along x ``speed_mps``, peak angular rate ``rot_rate_dps``):
 - ``figure8``: a Lissajous figure of eight in the x–y plane.
 - ``stop-go``: moves along x for the first half, then stands still (where activity-based
   representations fade and SCARF does not).
+- ``reversal``: along x at constant speed, turning back abruptly at ±amplitude (a triangle wave).
 - a CSV path with header ``t_s,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad`` (displacement, rotation vector),
   interpolated linearly (rotation by slerp) and held constant beyond its ends.
 """
@@ -26,7 +27,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-KINDS = ("trans", "trans-rot", "circle", "figure8", "stop-go")
+from evservo.inputs import require_regular_file
+
+KINDS = ("trans", "trans-rot", "circle", "figure8", "stop-go", "reversal")
 CSV_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad")
 
 Trajectory = Callable[[np.ndarray], np.ndarray]
@@ -50,6 +53,8 @@ def make_trajectory(
         raise ValueError(f"unknown trajectory {kind!r}; choose one of {KINDS} or a .csv file")
     if not (np.isfinite(speed_mps) and speed_mps >= 0 and np.isfinite(amplitude_m) and amplitude_m > 0):
         raise ValueError("speed must be >= 0 and amplitude > 0 (finite)")
+    if not (np.isfinite(rot_rate_dps) and rot_rate_dps >= 0):
+        raise ValueError(f"rotation rate must be finite and >= 0 deg/s, got {rot_rate_dps}")
     A = amplitude_m
     w = speed_mps / A  # rad/s so that the peak speed along x is speed_mps
     rot_amp = np.deg2rad(rot_rate_dps) / max(w, 1e-9) if kind == "trans-rot" else 0.0
@@ -64,6 +69,10 @@ def make_trajectory(
             trans = np.stack([A * np.sin(w * t), A * (1 - np.cos(w * t)), zeros], axis=1)
         elif kind == "figure8":
             trans = np.stack([A * np.sin(w * t), 0.5 * A * np.sin(2 * w * t), zeros], axis=1)
+        elif kind == "reversal":
+            # arcsin∘sin is a triangle wave of slope ±1: constant speed, reversing at ±A.
+            x = (2 * A / np.pi) * np.arcsin(np.sin(0.5 * np.pi * w * t))
+            trans = np.stack([x, zeros, zeros], axis=1)
         else:  # stop-go: constant speed for the first period's quarter, then rest
             t_stop = 0.5 * A / max(speed_mps, 1e-9)
             x = speed_mps * np.minimum(t, t_stop)
@@ -82,9 +91,7 @@ def make_trajectory(
 
 def load_csv_trajectory(path: str | Path) -> Trajectory:
     """Read a CSV trajectory (header ``t_s,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad``)."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"trajectory file not found: {path}")
+    path = require_regular_file(path, "trajectory file")
     with path.open(newline="") as fh:
         reader = csv.reader(fh)
         header = [h.strip() for h in next(reader, [])]

@@ -57,10 +57,10 @@ fn bench_field(c: &mut Criterion) {
     let mut field = DistanceField::new(FieldParams::default()).unwrap();
 
     c.bench_function("field/build_level0_values_400x400", |b| {
-        b.iter(|| field.build(black_box(&mask), ROI, 1, false).unwrap())
+        b.iter(|| field.build(black_box(&mask), ROI, 1).unwrap())
     });
-    c.bench_function("field/build_3levels_grad_400x400", |b| {
-        b.iter(|| field.build(black_box(&mask), ROI, 3, true).unwrap())
+    c.bench_function("field/build_3levels_400x400", |b| {
+        b.iter(|| field.build(black_box(&mask), ROI, 3).unwrap())
     });
 
     // 3000 model points (the registration budget) scattered over the ROI.
@@ -80,10 +80,10 @@ fn bench_field(c: &mut Criterion) {
                 .sum::<f32>()
         })
     });
-    c.bench_function("field/sample_grad_3000pts", |b| {
+    c.bench_function("field/sample_slope_3000pts", |b| {
         b.iter(|| {
             black_box(&points).iter().fold([0.0f32; 3], |acc, &(u, v)| {
-                let s = level.sample_grad(u, v);
+                let s = level.sample_slope(u, v);
                 [acc[0] + s[0], acc[1] + s[1], acc[2] + s[2]]
             })
         })

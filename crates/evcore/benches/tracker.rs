@@ -130,12 +130,12 @@ fn bench(c: &mut Criterion) {
     });
     let mut field = DistanceField::new(FieldParams::default()).expect("field");
     c.bench_function("field_build_level0", |b| {
-        b.iter(|| field.build(black_box(&mask), roi, 1, false).expect("build"))
+        b.iter(|| field.build(black_box(&mask), roi, 1).expect("build"))
     });
     c.bench_function("field_build_3_levels", |b| {
-        b.iter(|| field.build(black_box(&mask), roi, 3, false).expect("build"))
+        b.iter(|| field.build(black_box(&mask), roi, 3).expect("build"))
     });
-    field.build(&mask, roi, 3, false).expect("build");
+    field.build(&mask, roi, 3).expect("build");
     let pivot = centroid(&points);
     let off = evcore::solve::cost::apply_increment(
         &pose(),

@@ -94,9 +94,6 @@ pub struct FieldLevel {
     pub tau_px: f32,
     /// f(D) per pixel, row-major over `roi` (level pixels).
     pub value: Vec<f32>,
-    /// Central-difference gradient (d/du, d/dv) of `value` per pixel, in field units per level
-    /// pixel; empty unless built with gradients.
-    pub grad: Vec<[f32; 2]>,
 }
 
 impl FieldLevel {
@@ -111,17 +108,12 @@ impl FieldLevel {
             },
             tau_px,
             value: Vec::new(),
-            grad: Vec::new(),
         }
     }
 
     /// f(τ), the value of every pixel farther than τ from any active pixel.
     pub fn max_value(&self) -> f32 {
         rounded_distance(self.tau_px, self.tau_px)
-    }
-
-    pub fn has_gradient(&self) -> bool {
-        !self.grad.is_empty()
     }
 
     /// Bilinear sample at level-grid pixel coordinates (absolute, pixel centres at integers).
@@ -138,52 +130,17 @@ impl FieldLevel {
                 top + ay * (bottom - top)
             }
             Cell::Border { x, y, ax, ay } => {
-                let tap = |dx: i64, dy: i64| self.tap(x + dx, y + dy).0;
+                let tap = |dx: i64, dy: i64| self.tap(x + dx, y + dy);
                 bilinear(tap(0, 0), tap(1, 0), tap(0, 1), tap(1, 1), ax, ay)
             }
             Cell::Outside => self.max_value(),
         }
     }
 
-    /// (value, d/du, d/dv): bilinear interpolation of the value and of the stored per-pixel
-    /// gradients (so the gradient is continuous, unlike the derivative of the bilinear value).
-    /// The gradient is 0 outside the roi or when the level was built without gradients.
-    #[inline]
-    pub fn sample_grad(&self, u: f32, v: f32) -> [f32; 3] {
-        if !self.has_gradient() {
-            return [self.sample(u, v), 0.0, 0.0];
-        }
-        match self.cell(u, v) {
-            Cell::Interior { i, ax, ay } => {
-                let w = self.roi.width as usize;
-                let (val, g) = (&self.value, &self.grad);
-                [
-                    bilinear(val[i], val[i + 1], val[i + w], val[i + w + 1], ax, ay),
-                    bilinear(g[i][0], g[i + 1][0], g[i + w][0], g[i + w + 1][0], ax, ay),
-                    bilinear(g[i][1], g[i + 1][1], g[i + w][1], g[i + w + 1][1], ax, ay),
-                ]
-            }
-            Cell::Border { x, y, ax, ay } => {
-                let t = [
-                    self.tap(x, y),
-                    self.tap(x + 1, y),
-                    self.tap(x, y + 1),
-                    self.tap(x + 1, y + 1),
-                ];
-                [
-                    bilinear(t[0].0, t[1].0, t[2].0, t[3].0, ax, ay),
-                    bilinear(t[0].1[0], t[1].1[0], t[2].1[0], t[3].1[0], ax, ay),
-                    bilinear(t[0].1[1], t[1].1[1], t[2].1[1], t[3].1[1], ax, ay),
-                ]
-            }
-            Cell::Outside => [self.max_value(), 0.0, 0.0],
-        }
-    }
-
     /// (value, d/du, d/dv) of the bilinear interpolant itself: its slope is constant across each
     /// cell, so on the V of an unsigned distance a Gauss–Newton step lands on the edge exactly,
-    /// where the smoothed central-difference gradient of [`Self::sample_grad`] vanishes at the edge
-    /// and makes the step overshoot. Needs no stored gradient.
+    /// where a smoothed central-difference gradient would vanish at the edge and make the step
+    /// overshoot.
     #[inline]
     pub fn sample_slope(&self, u: f32, v: f32) -> [f32; 3] {
         let (v00, v10, v01, v11, ax, ay) = match self.cell(u, v) {
@@ -193,7 +150,7 @@ impl FieldLevel {
                 (val[i], val[i + 1], val[i + w], val[i + w + 1], ax, ay)
             }
             Cell::Border { x, y, ax, ay } => {
-                let tap = |dx: i64, dy: i64| self.tap(x + dx, y + dy).0;
+                let tap = |dx: i64, dy: i64| self.tap(x + dx, y + dy);
                 (tap(0, 0), tap(1, 0), tap(0, 1), tap(1, 1), ax, ay)
             }
             Cell::Outside => return [self.max_value(), 0.0, 0.0],
@@ -235,51 +192,13 @@ impl FieldLevel {
         }
     }
 
-    /// Value and gradient of roi-local pixel (x, y); f(τ) and no slope outside the roi.
-    fn tap(&self, x: i64, y: i64) -> (f32, [f32; 2]) {
+    /// Value of roi-local pixel (x, y); f(τ) outside the roi.
+    fn tap(&self, x: i64, y: i64) -> f32 {
         let (w, h) = (i64::from(self.roi.width), i64::from(self.roi.height));
         if x < 0 || y < 0 || x >= w || y >= h {
-            return (self.max_value(), [0.0, 0.0]);
+            return self.max_value();
         }
-        let i = (y * w + x) as usize;
-        (
-            self.value[i],
-            self.grad.get(i).copied().unwrap_or([0.0, 0.0]),
-        )
-    }
-
-    /// Central differences of `value`, one-sided on the roi border.
-    fn compute_gradient(&mut self) {
-        let (w, h) = (self.roi.width as usize, self.roi.height as usize);
-        // Every entry is overwritten below, so only new ones need initialising.
-        self.grad.resize(w * h, [0.0, 0.0]);
-        if w == 0 || h == 0 {
-            return;
-        }
-        let val = &self.value;
-        for (y, grow) in self.grad.chunks_exact_mut(w).enumerate() {
-            let row = &val[y * w..(y + 1) * w];
-            let up = &val[y.saturating_sub(1) * w..][..w];
-            let down = &val[(y + 1).min(h - 1) * w..][..w];
-            // A one-pixel axis has no slope; on its border the difference is one-sided.
-            let sy = match h {
-                1 => 0.0,
-                _ if y == 0 || y == h - 1 => 1.0,
-                _ => 0.5,
-            };
-            for (g, (&u, &d)) in grow.iter_mut().zip(up.iter().zip(down)) {
-                g[1] = (d - u) * sy;
-            }
-            if w == 1 {
-                grow[0][0] = 0.0;
-                continue;
-            }
-            for (g, win) in grow[1..w - 1].iter_mut().zip(row.windows(3)) {
-                g[0] = (win[2] - win[0]) * 0.5;
-            }
-            grow[0][0] = row[1] - row[0];
-            grow[w - 1][0] = row[w - 1] - row[w - 2];
-        }
+        self.value[(y * w + x) as usize]
     }
 }
 
@@ -362,14 +281,8 @@ impl DistanceField {
 
     /// Rebuild from a full-resolution mask of `roi` (row-major, `roi.width * roi.height`, nonzero
     /// = active). Builds the first `n_levels` (1..=params.levels) levels; 1 gives full resolution
-    /// only, for the cheap search step. Gradients are computed only if `with_gradient`.
-    pub fn build(
-        &mut self,
-        mask: &[u8],
-        roi: Roi,
-        n_levels: u32,
-        with_gradient: bool,
-    ) -> Result<()> {
+    /// only, for the cheap search step.
+    pub fn build(&mut self, mask: &[u8], roi: Roi, n_levels: u32) -> Result<()> {
         ensure((1..=self.params.levels).contains(&n_levels), || {
             format!(
                 "n_levels must be within 1..={}, got {n_levels}",
@@ -421,11 +334,6 @@ impl DistanceField {
             // Every entry is overwritten, so only new ones need initialising.
             lvl.value.resize(w * h, 0.0);
             truncated_field(level_mask, w, h, tau, &mut lvl.value, scratch);
-            if with_gradient {
-                lvl.compute_gradient();
-            } else {
-                lvl.grad.clear();
-            }
         }
         for (l, lvl) in levels.iter_mut().enumerate().skip(n_levels as usize) {
             lvl.level = l as u32;
@@ -437,7 +345,6 @@ impl DistanceField {
                 height: 0,
             };
             lvl.value.clear();
-            lvl.grad.clear();
         }
         self.built = n_levels;
         Ok(())
@@ -839,7 +746,7 @@ mod tests {
         assert!((d[4 * w] - 20f32.sqrt()).abs() < 1e-6);
 
         let mut f = field(2.5, 1);
-        f.build(&mask, Roi::full(7, 5), 1, false).unwrap();
+        f.build(&mask, Roi::full(7, 5), 1).unwrap();
         let v = &f.level(0).value;
         assert_eq!(v[2 * w + 4], 0.0);
         assert_eq!(v[2 * w + 5], 0.5);
@@ -889,8 +796,7 @@ mod tests {
             let mut d = vec![0.0; w * h];
             euclidean_distance(&mask, w, h, &mut d).unwrap();
             let mut f = field(tau, 1);
-            f.build(&mask, Roi::full(w as u32, h as u32), 1, false)
-                .unwrap();
+            f.build(&mask, Roi::full(w as u32, h as u32), 1).unwrap();
             for (k, (&v, &dk)) in f.level(0).value.iter().zip(&d).enumerate() {
                 let want = rounded_distance(dk, tau);
                 assert!(
@@ -916,12 +822,10 @@ mod tests {
                 height: 9,
             },
             3,
-            true,
         )
         .unwrap();
         for lvl in &f.levels {
             assert!(lvl.value.iter().all(|&v| v == 5.5));
-            assert!(lvl.grad.iter().all(|g| g == &[0.0, 0.0]));
         }
     }
 
@@ -936,7 +840,7 @@ mod tests {
         let (w, h) = (roi.width as usize, roi.height as usize);
         let mask = random_mask(w, h, 0.01, 7);
         let mut f = field(4.0, 3);
-        f.build(&mask, roi, 3, false).unwrap();
+        f.build(&mask, roi, 3).unwrap();
         assert_eq!(f.n_built(), 3);
         for l in 0..3u32 {
             let lvl = f.level(l);
@@ -956,7 +860,7 @@ mod tests {
         // One active pixel at absolute (8, 5) is level-1 pixel (4, 2) and level-2 pixel (2, 1).
         let mut one = vec![0u8; w * h];
         one[(5 - 1) * w + (8 - 3)] = 1;
-        f.build(&one, roi, 3, false).unwrap();
+        f.build(&one, roi, 3).unwrap();
         assert_eq!(f.level(1).sample(4.0, 2.0), 0.0);
         assert_eq!(f.level(1).sample(5.0, 2.0), 0.5);
         assert_eq!(f.level(2).sample(2.0, 1.0), 0.0);
@@ -976,14 +880,14 @@ mod tests {
             mask[y * 30 + 12] = 1; // vertical line at absolute u = 22
         }
         let mut f = field(10.0, 1);
-        f.build(&mask, roi, 1, true).unwrap();
+        f.build(&mask, roi, 1).unwrap();
         let l = f.level(0);
         assert_eq!(l.sample(22.0, 30.0), 0.0);
         assert_eq!(l.sample(25.0, 30.0), 2.5);
         assert!((l.sample(25.25, 30.7) - 2.75).abs() < 1e-6);
         assert!((l.sample(22.5, 31.0) - 0.25).abs() < 1e-6);
-        // On the linear flank of the line the gradient is exactly the finite-difference slope.
-        let [val, gu, gv] = l.sample_grad(25.25, 30.7);
+        // On the linear flank of the line the slope is exactly the finite-difference slope.
+        let [val, gu, gv] = l.sample_slope(25.25, 30.7);
         let fd = (l.sample(25.3, 30.7) - l.sample(25.2, 30.7)) / 0.1;
         assert!(
             (val - 2.75).abs() < 1e-6
@@ -991,7 +895,7 @@ mod tests {
                 && gv == 0.0
                 && (fd - 1.0).abs() < 1e-4
         );
-        let [_, gu, _] = l.sample_grad(19.5, 30.0);
+        let [_, gu, _] = l.sample_slope(19.5, 30.0);
         assert!(
             (gu + 1.0).abs() < 1e-6,
             "left flank slopes down towards the line: {gu}"
@@ -1001,71 +905,20 @@ mod tests {
         assert_eq!(l.sample(25.0, f32::INFINITY), 9.5);
         // Half a pixel past the last row blends the edge row with the cap.
         assert!((l.sample(25.0, 44.5) - 0.5 * (2.5 + 9.5)).abs() < 1e-6);
-        assert_eq!(l.sample_grad(f32::NAN, 0.0), [9.5, 0.0, 0.0]);
+        assert_eq!(l.sample_slope(f32::NAN, 0.0), [9.5, 0.0, 0.0]);
     }
 
     #[test]
-    fn sample_grad_matches_finite_differences() {
-        let roi = Roi::full(60, 50);
-        let mut mask = vec![0u8; roi.area()];
-        mask[20 * 60 + 25] = 1;
-        mask[40 * 60 + 30] = 1;
-        let mut f = field(10.0, 1);
-        f.build(&mask, roi, 1, true).unwrap();
-        let l = f.level(0);
-        // Within 3..8 px of one point (off the apex, inside τ) the field is a cone of unit slope.
-        let mut rng = Rng::new(3);
-        for _ in 0..300 {
-            let (r, a) = (
-                3.0 + 5.0 * rng.uniform() as f32,
-                std::f32::consts::TAU * rng.uniform() as f32,
-            );
-            let (u, v) = (25.0 + r * a.cos(), 20.0 + r * a.sin());
-            let [val, gu, gv] = l.sample_grad(u, v);
-            assert_eq!(val, l.sample(u, v));
-            let e = 0.05;
-            let fu = (l.sample(u + e, v) - l.sample(u - e, v)) / (2.0 * e);
-            let fv = (l.sample(u, v + e) - l.sample(u, v - e)) / (2.0 * e);
-            // Interpolated central differences vs the slope of the bilinear interpolant: they differ
-            // by the cone's curvature (1/r) over one pixel, not by more.
-            assert!(
-                (gu - fu).abs() < 0.25 && (gv - fv).abs() < 0.25,
-                "({u}, {v}): {gu},{gv} vs {fu},{fv}"
-            );
-            assert!(
-                (gu - a.cos()).abs() < 0.1 && (gv - a.sin()).abs() < 0.1,
-                "({u}, {v}): {gu},{gv} at angle {a}"
-            );
-        }
-        // At pixel centres the stored gradient is exactly the central difference of the values.
-        let v = &l.value;
-        let i = 33 * 60 + 27;
-        assert_eq!(
-            l.sample_grad(27.0, 33.0),
-            [
-                v[i],
-                (v[i + 1] - v[i - 1]) / 2.0,
-                (v[i + 60] - v[i - 60]) / 2.0
-            ]
-        );
-        // Beyond τ the field is flat.
-        assert_eq!(l.sample_grad(55.0, 5.0), [9.5, 0.0, 0.0]);
-    }
-
-    #[test]
-    fn partial_builds_and_missing_gradients() {
+    fn partial_builds_reuse_buffers() {
         let roi = Roi::full(40, 30);
         let mask = random_mask(40, 30, 0.05, 11);
         let mut f = field(5.0, 3);
-        f.build(&mask, roi, 3, true).unwrap();
-        assert!(f.level(2).has_gradient());
-        f.build(&mask, roi, 1, false).unwrap();
+        f.build(&mask, roi, 3).unwrap();
+        assert_eq!(f.n_built(), 3);
+        f.build(&mask, roi, 1).unwrap();
         assert_eq!(f.n_built(), 1);
-        assert!(!f.level(0).has_gradient());
         assert_eq!(f.level(1).roi.area(), 0);
         assert_eq!(f.level(2).sample(3.0, 3.0), 4.5);
-        let [val, gu, gv] = f.level(0).sample_grad(10.3, 7.6);
-        assert_eq!((val, gu, gv), (f.level(0).sample(10.3, 7.6), 0.0, 0.0));
         assert_eq!(f.level(9).level, 2);
 
         // Rebuilding into reused buffers gives what a fresh field gives.
@@ -1076,9 +929,9 @@ mod tests {
             height: 7,
         };
         let small_mask = random_mask(9, 7, 0.1, 12);
-        f.build(&small_mask, small, 3, true).unwrap();
+        f.build(&small_mask, small, 3).unwrap();
         let mut fresh = field(5.0, 3);
-        fresh.build(&small_mask, small, 3, true).unwrap();
+        fresh.build(&small_mask, small, 3).unwrap();
         assert_eq!(f.levels, fresh.levels);
     }
 
@@ -1103,9 +956,9 @@ mod tests {
         }
         let mut f = DistanceField::new(FieldParams::default()).unwrap();
         let roi = Roi::full(4, 4);
-        assert!(f.build(&[0; 15], roi, 1, false).is_err());
-        assert!(f.build(&[0; 16], roi, 0, false).is_err());
-        assert!(f.build(&[0; 16], roi, 4, false).is_err());
+        assert!(f.build(&[0; 15], roi, 1).is_err());
+        assert!(f.build(&[0; 16], roi, 0).is_err());
+        assert!(f.build(&[0; 16], roi, 4).is_err());
         assert!(f
             .build(
                 &[0; 16],
@@ -1116,11 +969,10 @@ mod tests {
                     height: 4
                 },
                 1,
-                false
             )
             .is_err());
         f.params.tau_px = f32::NAN;
-        assert!(f.build(&[0; 16], roi, 1, false).is_err());
+        assert!(f.build(&[0; 16], roi, 1).is_err());
         assert!(euclidean_distance(&[0; 15], 4, 4, &mut [0.0; 16]).is_err());
         assert!(euclidean_distance(&[0; 16], 4, 4, &mut [0.0; 15]).is_err());
         assert!(euclidean_distance(&[], usize::MAX, 2, &mut []).is_err());
@@ -1128,7 +980,7 @@ mod tests {
         f.params.tau_px = 10.0;
         f.levels.clear();
         assert_eq!(f.level(0).sample(1.0, 1.0), 9.5);
-        f.build(&[1; 16], roi, 3, false).unwrap();
+        f.build(&[1; 16], roi, 3).unwrap();
         assert_eq!(f.levels.len(), 3);
     }
 }

@@ -201,9 +201,26 @@ pub fn extract_point_set(
             )
         },
     )?;
+    let t = t_c_o.translation.vector;
+    // A camera inside the object's bounding box sees the object's inside all around: there is no
+    // outline to track, and the edge count below would blame size or distance.
+    let c_o = t_c_o.inverse() * Point3::origin();
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for v in &mesh.vertices {
+        for i in 0..3 {
+            lo[i] = lo[i].min(f64::from(v[i]));
+            hi[i] = hi[i].max(f64::from(v[i]));
+        }
+    }
+    ensure(!(0..3).all(|i| c_o[i] > lo[i] && c_o[i] < hi[i]), || {
+        format!(
+            "the camera is inside the object: T_c_o translation ({:.3}, {:.3}, {:.3}) m puts the camera at \
+             ({:.3}, {:.3}, {:.3}) m in the object frame, within its bounding box",
+            t.x, t.y, t.z, c_o.x, c_o.y, c_o.z
+        )
+    })?;
     let cam = camera.rectified();
     let r = render(mesh, &cam, t_c_o, None, &RenderOptions::default())?;
-    let t = t_c_o.translation.vector;
     let fg: Vec<f32> = r
         .depth_m
         .iter()
@@ -221,9 +238,15 @@ pub fn extract_point_set(
         let (lo, hi) = fg.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), &d| {
             (lo.min(d), hi.max(d))
         });
+        // An object covering (nearly) the whole image has its outline outside it: too close.
+        let why = if fg.len() as f64 >= 0.9 * f64::from(cam.width) * f64::from(cam.height) {
+            "the object fills the view: it is too close"
+        } else {
+            "the object is too small, too far or mostly out of view"
+        };
         return Err(Error::InvalidArgument(format!(
             "only {} edge pixels (need 20) at T_c_o translation ({:.3}, {:.3}, {:.3}) m, depth {lo:.3}..{hi:.3} m over {} \
-             pixels: the object is too small, too far or mostly out of view",
+             pixels: {why}",
             edges.len(),
             t.x,
             t.y,

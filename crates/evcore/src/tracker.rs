@@ -614,7 +614,7 @@ impl Solver {
         };
         self.mask.resize(roi.area(), 0);
         self.reader.fill_mask(roi, &mut self.mask);
-        let built = self.field.build(&self.mask, roi, n_levels, false);
+        let built = self.field.build(&self.mask, roi, n_levels);
         let new_pose = match (built, kind) {
             (Err(_), _) => pose,
             (Ok(()), StepKind::Lm) => {

@@ -3,6 +3,7 @@
 use crate::errors::to_py;
 use evcore::Camera;
 use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 #[pyclass(name = "Camera", module = "evservo._evcore", frozen)]
@@ -17,14 +18,21 @@ impl PyCamera {
     #[new]
     #[pyo3(signature = (width, height, fx, fy, cx, cy, dist=(0.0, 0.0, 0.0, 0.0, 0.0)))]
     fn new(
-        width: u32,
-        height: u32,
+        width: i64,
+        height: i64,
         fx: f64,
         fy: f64,
         cx: f64,
         cy: f64,
         dist: (f64, f64, f64, f64, f64),
     ) -> PyResult<Self> {
+        // Taken as i64 so that a negative or huge size is a ValueError with the size in it, not
+        // PyO3's OverflowError about an unsigned conversion.
+        let (Ok(width), Ok(height)) = (u32::try_from(width), u32::try_from(height)) else {
+            return Err(PyValueError::new_err(format!(
+                "sensor size {width}x{height} must be within 1..=16384 pixels"
+            )));
+        };
         let d = [dist.0, dist.1, dist.2, dist.3, dist.4];
         Ok(Self {
             inner: Camera::new(width, height, fx, fy, cx, cy, d).map_err(to_py)?,

@@ -61,7 +61,7 @@ fn distance_field<'py>(
     };
     let built = py.detach(|| {
         let mut f = DistanceField::new(FieldParams { tau_px, levels })?;
-        f.build(&m, roi, levels, false)?;
+        f.build(&m, roi, levels)?;
         Ok(f)
     });
     let f = built.map_err(to_py)?;

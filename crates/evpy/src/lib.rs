@@ -6,9 +6,11 @@ use pyo3::prelude::*;
 mod camera;
 mod errors;
 mod events;
+mod evt3;
 mod field;
 mod io;
 mod model;
+mod pose;
 mod sim;
 mod simcam;
 mod tracker;
@@ -25,5 +27,6 @@ fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     simcam::register(m)?;
     model::register(m)?;
     io::register(m)?;
+    evt3::register(m)?;
     Ok(())
 }

@@ -2,11 +2,11 @@
 
 use crate::camera::PyCamera;
 use crate::errors::to_py;
+use crate::pose::pose_arg;
 use evcore::mesh::{Mesh, Shading, Texture};
 use evcore::pointset::{extract_point_set as core_extract, PointSetParams};
 use evcore::render::{render as core_render, RenderOptions};
-use evcore::se3::pose_from_matrix;
-use evcore::{Pose, Roi};
+use evcore::Roi;
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
@@ -58,19 +58,6 @@ fn rows3<T: Copy>(a: &numpy::ndarray::ArrayView2<'_, T>) -> PyResult<Vec<[T; 3]>
         )));
     }
     Ok(a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect())
-}
-
-/// A 4×4 float64 pose matrix (object in camera) as a [`Pose`]; NaN or non-rigid → ValueError.
-pub(crate) fn pose_arg(m: &PyReadonlyArray2<'_, f64>) -> PyResult<Pose> {
-    let a = m.as_array();
-    if a.shape() != [4, 4] {
-        return Err(value_error(format!(
-            "pose must be a 4x4 matrix, got shape {:?}",
-            a.shape()
-        )));
-    }
-    let rows: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| a[(i, j)]));
-    pose_from_matrix(&rows).map_err(to_py)
 }
 
 #[pymethods]

@@ -3,10 +3,10 @@
 
 use crate::camera::PyCamera;
 use crate::errors::to_py;
-use crate::model::{pose_arg, PyMesh};
+use crate::model::PyMesh;
+use crate::pose::{pose_arg, poses_arg};
 use crate::sim::{pack_event_cd, params_from, to_event_cd};
 use evcore::render::RenderOptions;
-use evcore::se3::{pose_from_matrix, Pose};
 use evcore::sim::camera::{Background, BackgroundPlane, SimCamera};
 use evcore::EventBatch;
 use numpy::ndarray::Array2;
@@ -201,24 +201,6 @@ impl PySimCamera {
             self.inner.simulator().params()
         )
     }
-}
-
-/// An (N, 4, 4) stack of rigid poses.
-fn poses_arg(m: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<Pose>> {
-    let a = m.as_array();
-    if a.shape()[1..] != [4, 4] {
-        return Err(PyValueError::new_err(format!(
-            "poses must be an (N, 4, 4) array, got shape {:?}",
-            a.shape()
-        )));
-    }
-    (0..a.shape()[0])
-        .map(|k| {
-            let rows: [[f64; 4]; 4] =
-                std::array::from_fn(|i| std::array::from_fn(|j| a[(k, i, j)]));
-            pose_from_matrix(&rows).map_err(to_py)
-        })
-        .collect()
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

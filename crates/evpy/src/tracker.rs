@@ -3,8 +3,9 @@
 use crate::camera::PyCamera;
 use crate::errors::to_py;
 use crate::events::{records, EventArray};
+use crate::pose::pose_arg;
 use evcore::field::FieldParams;
-use evcore::se3::{pose_from_matrix, pose_to_matrix};
+use evcore::se3::pose_to_matrix;
 use evcore::solve::{LmParams, SolverMode, StepKind};
 use evcore::surface::FrontEnd;
 use evcore::tracker::{
@@ -82,18 +83,6 @@ fn matrix_to_py<'py>(py: Python<'py>, m: &[[f64; 4]; 4]) -> Bound<'py, PyArray2<
     numpy::ndarray::Array2::from_shape_fn((4, 4), |(i, j)| m[i][j]).into_pyarray(py)
 }
 
-pub fn matrix_from_py(m: &PyReadonlyArray2<'_, f64>) -> PyResult<evcore::Pose> {
-    let a = m.as_array();
-    if a.shape() != [4, 4] {
-        return Err(PyValueError::new_err(format!(
-            "a pose must be a 4x4 matrix, got shape {:?}",
-            a.shape()
-        )));
-    }
-    let arr: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| a[(i, j)]));
-    pose_from_matrix(&arr).map_err(to_py)
-}
-
 /// A field image and the (x0, y0) of its region in the rectified image.
 type FieldWithOrigin<'py> = (Bound<'py, PyArray2<f32>>, (u32, u32));
 
@@ -140,7 +129,7 @@ impl PyTracker {
         max_ingest_rate: Option<f64>,
         anti_flicker_hz: Vec<f64>,
     ) -> PyResult<Self> {
-        let pose = matrix_from_py(&T_c_o)?;
+        let pose = pose_arg(&T_c_o)?;
         let pts = points_o.as_array();
         if pts.ncols() != 3 {
             return Err(PyValueError::new_err(format!(
@@ -275,6 +264,13 @@ impl PyTracker {
         })
     }
 
+    /// Steps per cycle: 1 LM + N search for edft+, N + 1 steps of a single solver otherwise. After
+    /// this many steps without new events the thread rests until the next batch.
+    #[getter]
+    fn cycle_len(&self, py: Python<'_>) -> PyResult<usize> {
+        self.with_core(py, |core| core.cycle_len())
+    }
+
     #[getter]
     fn running(&self, py: Python<'_>) -> PyResult<bool> {
         self.with_state(
@@ -287,7 +283,7 @@ impl PyTracker {
     /// next update.
     #[allow(non_snake_case)]
     fn reset_pose(&self, py: Python<'_>, T_c_o: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
-        let pose = matrix_from_py(&T_c_o)?;
+        let pose = pose_arg(&T_c_o)?;
         self.with_core(py, |core| core.reset_pose(pose))?
             .map_err(to_py)
     }
@@ -392,5 +388,8 @@ impl PyTracker {
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyTracker>()?;
-    m.add_class::<PyEstimate>()
+    m.add_class::<PyEstimate>()?;
+    // The names the Tracker accepts, for Python's command-line choices: parsed here only.
+    m.add("SOLVERS", SolverMode::NAMES)?;
+    m.add("FRONTENDS", FrontEnd::NAMES)
 }

@@ -9,8 +9,10 @@ tracker cost):
   0.2 and 0.4 m/s, one seed).
 - Fig. 5: the motion plot of the Z = 0.6 m translation run.
 - Fig. 2 in the closed loop: SCARF vs fixed-count front-end.
-- Beyond the paper: the same Table I rows with feed-forward, and a speed sweep per tracker that finds
-  the highest speed with tracking held to the end.
+- Beyond the paper: the same Table I rows with our controller (feed-forward within the arm's limits), a
+  speed sweep per tracker up to the Panda's Cartesian limit (1.7 m/s) saying per speed whether the arm
+  or the tracker gave out, and the target predictor (constant velocity vs acceleration) on stop-go and
+  reversal trajectories.
 
 Every episode writes its own directory (``episodes/<key>/summary.json``, ``log.csv``,
 ``motion.png``); a rerun reuses finished episodes, so an interrupted run resumes.
@@ -23,15 +25,15 @@ import multiprocessing
 import os
 import platform
 import shutil
+import signal
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 
 import evservo
-from evservo.sim.episode import EpisodeConfig
+from evservo.sim.episode import PREDICTORS, EpisodeConfig
 
 # (pos mm, rot °) of the paper's Table I/II: EDFT⁺ mean ± std over three runs, EDOPTS one run.
 PAPER = {
@@ -79,15 +81,20 @@ def plan(quick: bool) -> list[tuple[str, EpisodeConfig]]:
         for v in () if quick else (0.2, 0.4):
             out.append(("table2", replace(base, object=obj, speed_mps=v)))
     out.append(("fig2", replace(base, frontend="fixed-count")))
-    speeds = (0.4, 0.8) if quick else (0.2, 0.4, 0.6, 0.8, 1.0, 1.2)
+    # Up to the Panda's Cartesian limit (1.7 m/s, Franka FCI).
+    speeds = (0.4, 1.7) if quick else (0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.45, 1.7)
     for tracker in ("edft+", "edopts"):
         for v in speeds:
             out.append(("sweep", replace(base, tracker=tracker, speed_mps=v, feedforward=True)))
+    # The target predictor against plain feed-forward where the target stops or turns back abruptly.
+    for traj in ("stop-go",) if quick else ("stop-go", "reversal"):
+        for predictor in PREDICTORS:
+            out.append(("predictor", replace(base, trajectory=traj, feedforward=True, predictor=predictor)))
     return out
 
 
 def episode_key(cfg: EpisodeConfig) -> str:
-    ff = "-ff" if cfg.feedforward else ""
+    ff = ("-ff" + ("-acc" if cfg.predictor == "acceleration" else "")) if cfg.feedforward else ""
     fe = "" if cfg.frontend == "scarf" else f"-{cfg.frontend}"
     return (
         f"{cfg.object}-z{cfg.distance_m:g}-{cfg.trajectory}-v{cfg.speed_mps:g}-{cfg.tracker}{fe}{ff}"
@@ -100,8 +107,29 @@ def _run_one(cfg: EpisodeConfig, out_dir: str) -> dict:
 
     result = run_episode(cfg)
     summary = summarize(result)
+    if summary["interrupted"]:
+        # A partial episode must not be written: the next run would reuse it as finished.
+        raise KeyboardInterrupt
     write_outputs(result, out_dir, summary)
     return summary
+
+
+def _run_keyed(item: tuple[str, EpisodeConfig, str]) -> tuple[str, dict]:
+    key, cfg, out_dir = item
+    return key, _run_one(cfg, out_dir)
+
+
+def _ignore_sigint() -> None:
+    """Worker initializer: Ctrl-C reaches the whole process group, but only the parent acts on it
+    (it terminates the workers); a worker that caught it would hand back an interrupted episode."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _load_summary(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path}: unreadable episode summary ({e}); delete it to rerun the episode") from None
 
 
 def run_all(out: Path, quick: bool, jobs: int) -> tuple[list[tuple[str, str, EpisodeConfig, dict]], int]:
@@ -116,7 +144,7 @@ def run_all(out: Path, quick: bool, jobs: int) -> tuple[list[tuple[str, str, Epi
     for _, key, cfg in rows:
         path = out / "episodes" / key / "summary.json"
         if path.exists():
-            summaries[key] = json.loads(path.read_text())
+            summaries[key] = _load_summary(path)
         else:
             todo[key] = cfg
     bar = tqdm(total=len(todo) + len(summaries), initial=len(summaries), unit="episode", desc="paper suite")
@@ -128,12 +156,21 @@ def run_all(out: Path, quick: bool, jobs: int) -> tuple[list[tuple[str, str, Epi
         else:
             # Workers are spawned, not forked: a fork copies rayon's global pool without its threads, and the
             # child's first parallel call then waits forever for workers that do not exist.
+            # A multiprocessing pool rather than concurrent.futures: on Ctrl-C (or a failed episode) the
+            # parent terminates the workers at once instead of waiting for their queued episodes.
             ctx = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-                futures = {pool.submit(_run_one, cfg, str(out / "episodes" / key)): key for key, cfg in todo.items()}
-                for fut in as_completed(futures):
-                    summaries[futures[fut]] = fut.result()
+            items = [(key, cfg, str(out / "episodes" / key)) for key, cfg in todo.items()]
+            pool = ctx.Pool(processes=jobs, initializer=_ignore_sigint)
+            try:
+                for key, summary in pool.imap_unordered(_run_keyed, items):
+                    summaries[key] = summary
                     bar.update()
+                pool.close()
+            except BaseException:
+                pool.terminate()
+                raise
+            finally:
+                pool.join()
     return [(section, key, cfg, summaries[key]) for section, key, cfg in rows], len(summaries) - len(todo)
 
 
@@ -213,7 +250,36 @@ def report(
                       if sec == "sweep" and cfg.tracker == trk and s["completed"])  # fmt: skip
         top = max(held) if held else "—"
         lines.append(f"- {trk}: tracking held to the end at {held or 'no'} m/s; highest {top} m/s")
+        for _, _, cfg, s in sorted(
+            ((sec, k, c, s) for sec, k, c, s in episodes if sec == "sweep" and c.tracker == trk),
+            key=lambda e: e[2].speed_mps,
+        ):
+            verdict = "held" if s["completed"] else f"lost at {s['lost_at_s']:.2f} s, {s.get('gave_out')} gave out"
+            lines.append(
+                f"  - {cfg.speed_mps:g} m/s: {verdict}; servo {s['servo_pos_rms_mm']:.1f} mm, lag {s['lag_s']:.3f} s, "
+                f"Panda's fastest joint at {s.get('joint_speed_max_ratio', float('nan')):.2f} of its limit, "
+                f"command cut to the arm's reach {100 * s.get('arm_limited_fraction', float('nan')):.0f} % of the time"
+            )
     lines.append("")
+    pred = [(cfg, s) for sec, _, cfg, s in episodes if sec == "predictor"]
+    if pred:
+        lines += [
+            "## Beyond the paper: target predictor across the latencies",
+            "",
+            "Feed-forward extrapolating the target at constant velocity vs constant acceleration, on the box at "
+            "Z = 0.9 m. Overshoot: the camera's largest travel past where the target came to rest (stop-go) or "
+            "turned back (reversal), along x, in mm.",
+            "",
+            "| trajectory | predictor | completed | servo pos mm / rot ° | lag s | overshoot mm |",
+            "|---|---|---|---:|---:|---:|",
+        ]
+        for cfg, s in sorted(pred, key=lambda e: (e[0].trajectory, e[0].predictor)):
+            lines.append(
+                f"| {cfg.trajectory} | {cfg.predictor} | {'yes' if s['completed'] else 'no'} "
+                f"| {s['servo_pos_rms_mm']:.2f} / {s['servo_rot_rms_deg']:.2f} | {s['lag_s']:.3f} "
+                f"| {s.get('overshoot_mm', float('nan')):.1f} |"
+            )
+        lines.append("")
     fig5 = [(k, s) for sec, k, cfg, s in episodes if sec == "table1" and cfg.distance_m == 0.6
             and cfg.trajectory == "trans" and cfg.tracker == "edft+" and cfg.seed == 1]  # fmt: skip
     if fig5:

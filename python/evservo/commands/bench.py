@@ -8,13 +8,21 @@ import shutil
 from pathlib import Path
 
 SUITES = ("latency", "paper")
+#: Each suite's report files, removed at the start so an interrupted run leaves none of an earlier one.
+REPORTS = {"latency": ("latency.md", "latency.json"), "paper": ("report.md", "results.json")}
 #: Marks a directory of copied report files as ours to replace on the next run.
 STAMP = "SOURCE.txt"
 
 
 def run(args: argparse.Namespace) -> int:
+    from evservo.outputs import check_out_file, prepare_out_dir
+
     if args.jobs < 1:
         raise ValueError("--jobs must be at least 1")
+    # Checked before any episode runs; the paper suite's finished episodes in it are reused.
+    prepare_out_dir(args.out, stale=REPORTS[args.suite])
+    if args.results is not None:
+        check_out_file(args.results, (".md",), option="--results")
     if args.suite == "paper":
         from evservo.bench import paper
 

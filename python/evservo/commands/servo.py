@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 # The paper's Tables I and II (RMS servoing error over the run: pos. mm, rot. deg), for comparison.
@@ -21,83 +22,172 @@ PAPER_TABLE = {
 }
 
 
-def add_episode_arguments(p: argparse.ArgumentParser, *, distance: float, speed: float, duration: float) -> None:
-    """Options shared by ``servo`` and ``demo`` (defaults differ)."""
-    from evservo.sim.episode import COST_MODELS
+#: Options of the simulated bench only (``--robot`` refuses them), by EpisodeConfig field.
+SIM_ONLY = {
+    "object": "object", "trajectory": "trajectory", "speed": "speed_mps", "rot_rate": "rot_rate_dps",
+    "distance": "distance_m", "seed": "seed", "cost_model": "cost_model", "dropout": "dropout_s",
+    "events": "event_source", "render_arms": "render_arms", "predictor": "predictor",
+}  # fmt: skip
+
+
+def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> None:
+    """Options shared by ``servo`` and ``demo``. ``defaults``: the command's own defaults, as
+    :class:`~evservo.sim.episode.EpisodeConfig` fields (the config's own defaults hold otherwise).
+    Sim-only options parse to None when not given, so ``--robot`` can tell they were."""
+    from dataclasses import fields
+
+    from evservo.commands.track import add_viewer_arguments
+    from evservo.sim.episode import COST_MODELS, PREDICTORS, EpisodeConfig
     from evservo.tracking import SOLVERS
 
-    p.add_argument("--object", default="box", help="box, drill, football or a mesh path")
-    p.add_argument("--tracker", default="edft+", choices=SOLVERS)
-    p.add_argument("--trajectory", default="trans", help="trans, trans-rot, circle, figure8, stop-go or a CSV")
-    p.add_argument("--speed", type=float, default=speed, help="peak target speed, m/s")
-    p.add_argument("--rot-rate", type=float, default=30.0, help="peak target rotation rate (trans-rot), deg/s")
-    p.add_argument("--distance", type=float, default=distance, help="camera–object distance Z, m")
-    p.add_argument("--duration", type=float, default=duration, help="servoing time, s")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--feedforward", action="store_true", help="feed the target's velocity and acceleration forward")
-    p.add_argument("--cost-model", default="measured", choices=COST_MODELS, help="tracker time charged to the clock")
+    base = {f.name: f.default for f in fields(EpisodeConfig)}
+    unknown = set(defaults) - set(base)
+    if unknown:
+        raise TypeError(f"not EpisodeConfig fields: {sorted(unknown)}")
+    base.update(defaults)
+    p.set_defaults(episode_defaults=dict(defaults))
+
+    def d(name: str) -> str:
+        return f"(default {base[name]})"
+
+    p.add_argument("--object", help=f"box, drill, football or a mesh path {d('object')}")
+    p.add_argument("--tracker", default=base["tracker"], choices=SOLVERS)
+    p.add_argument(
+        "--trajectory", help=f"trans, trans-rot, circle, figure8, stop-go, reversal or a CSV {d('trajectory')}"
+    )
+    p.add_argument("--speed", type=float, help=f"peak target speed, m/s {d('speed_mps')}")
+    p.add_argument("--rot-rate", type=float, help=f"peak target rotation rate (trans-rot), deg/s {d('rot_rate_dps')}")
+    p.add_argument("--distance", type=float, help=f"camera–object distance Z, m {d('distance_m')}")
+    p.add_argument("--duration", type=float, default=base["duration_s"], help="servoing time, s")
+    p.add_argument("--seed", type=int, help=f"random seed {d('seed')}")
+    ff = bool(base["feedforward"])
+    law = p.add_mutually_exclusive_group()
+    law.add_argument(
+        "--feedforward",
+        action="store_true",
+        default=ff,
+        help="our controller: the target's motion fed forward within what the arm can deliver" + " (default)" * ff,
+    )
+    law.add_argument(
+        "--paper-law",
+        dest="feedforward",
+        action="store_false",
+        help="the paper's literal Eq. (5)-(6) loop" + " (default)" * (not ff),
+    )
+    p.add_argument(
+        "--predictor",
+        choices=PREDICTORS,
+        help=f"feed-forward: extrapolate the target across the latencies at constant velocity or acceleration "
+        f"{d('predictor')}",
+    )
+    p.add_argument("--cost-model", choices=COST_MODELS, help=f"tracker time charged to the clock {d('cost_model')}")
     p.add_argument("--dropout", type=float, nargs=2, metavar=("START", "END"), help="lose all events in [START, END) s")
     p.add_argument(
         "--events",
-        default="edges",
         choices=("edges", "render"),
-        help="event source: the model's edges (fast) or the rendered event camera (realistic, slow)",
+        help=f"event source: the model's edges (fast) or the rendered event camera (slow) {d('event_source')}",
     )
     p.add_argument(
         "--render-arms",
         action="store_true",
+        default=None,
         help="also draw the UR5e and Panda arms into the rendered event camera (needs --events render)",
     )
     p.add_argument("--out", type=Path, help="output directory (summary.json, log.csv, motion.png)")
+    add_viewer_arguments(p)
+
+
+def sim_options_given(args: argparse.Namespace) -> list[str]:
+    """The sim-only options given on the command line, as ``--name``."""
+    return [f"--{opt.replace('_', '-')}" for opt in SIM_ONLY if getattr(args, opt, None) is not None]
 
 
 def config_from_args(args: argparse.Namespace):
     """The :class:`~evservo.sim.episode.EpisodeConfig` of parsed options."""
     from evservo.sim.episode import EpisodeConfig
 
-    return EpisodeConfig(
-        object=args.object,
-        tracker=args.tracker,
-        trajectory=args.trajectory,
-        speed_mps=args.speed,
-        rot_rate_dps=args.rot_rate,
-        distance_m=args.distance,
-        duration_s=args.duration,
-        seed=args.seed,
-        feedforward=args.feedforward,
-        cost_model=args.cost_model,
-        dropout_s=tuple(args.dropout) if args.dropout else None,
-        event_source=args.events,
-        render_arms=getattr(args, "render_arms", False),
+    values = dict(args.episode_defaults)
+    values.update({field: getattr(args, opt) for opt, field in SIM_ONLY.items() if getattr(args, opt) is not None})
+    if values.get("dropout_s") is not None:
+        values["dropout_s"] = tuple(values["dropout_s"])
+    # The parsed values win over the command's defaults (demo's duration_s and feedforward among them).
+    values.update(tracker=args.tracker, duration_s=args.duration, feedforward=args.feedforward)
+    return EpisodeConfig(**values)
+
+
+def run_with_report(args: argparse.Namespace, default_out: Path, compare_paper_law: bool = False) -> int:
+    """Run the episode with a progress bar, write the outputs, print the summary beside the paper. With
+    ``compare_paper_law`` and our controller, run the same episode with the paper's literal law too (into
+    ``OUT/paper-law``) and print one line for each and one for the paper's published numbers."""
+    from evservo.outputs import prepare_out_dir
+    from evservo.sim.episode import OUTPUTS
+
+    events = args.events if args.events is not None else args.episode_defaults.get("event_source", "edges")
+    if args.render_arms and events != "render":
+        raise ValueError(
+            f"--render-arms draws the arms in the rendered event camera: needs --events render, not --events {events}"
+        )
+    cfg = config_from_args(args)
+    literal = compare_paper_law and cfg.feedforward
+    # Checked, and cleared of an earlier run's files, before the run: never fails after it.
+    out = prepare_out_dir(args.out or default_out, stale=OUTPUTS)
+    out_literal = prepare_out_dir(out / "paper-law", stale=OUTPUTS) if literal else None
+    print(
+        f"servo (sim): {cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s, "
+        f"{cfg.duration_s} s, {_law_name(cfg)}, cost model {cfg.cost_model}"
     )
+    summary = _run_and_write(cfg, out, args.viewer, args.viewer_save)
+    print_summary(summary)
+    if summary["interrupted"]:
+        print(f"evservo: interrupted: partial outputs (marked interrupted) in {out}", file=sys.stderr)
+        return 130
+    if out_literal is not None:
+        print(f"\nthe same episode with the paper's literal Eq. (5)-(6) loop, into {out_literal}:")
+        paper_law = _run_and_write(replace(cfg, feedforward=False), out_literal)
+        if paper_law["interrupted"]:
+            print(f"evservo: interrupted: partial outputs (marked interrupted) in {out_literal}", file=sys.stderr)
+            return 130
+        print_comparison(summary, paper_law)
+    return 0
 
 
-def run_with_report(args: argparse.Namespace, default_out: Path) -> int:
-    """Run the episode with a progress bar, write the outputs, print the summary beside the paper."""
+def _law_name(cfg) -> str:
+    if cfg.feedforward:
+        return f"our controller (feed-forward within the arm's limits, {cfg.predictor} predictor)"
+    return "the paper's literal Eq. (5)-(6)"
+
+
+def _run_and_write(cfg, out: Path, viewer_kind: str | None = None, viewer_save: str | None = None) -> dict:
+    """Run one episode with a progress bar (and the live viewer, if asked for) and write its outputs
+    into ``out``; returns its summary."""
     from tqdm import tqdm
 
     from evservo.sim.episode import run_episode, summarize, write_outputs
+    from evservo.viewer import open_viewer
 
-    if getattr(args, "render_arms", False) and args.events != "render":
-        print(
-            "evservo: error: --render-arms draws the arms in the rendered event camera: "
-            f"it needs --events render, not --events {args.events}",
-            file=sys.stderr,
-        )
-        return 2
-    cfg = config_from_args(args)
-    out = args.out or default_out
-    print(
-        f"servo (sim): {cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s, "
-        f"{cfg.duration_s} s, feed-forward {'on' if cfg.feedforward else 'off'}, cost model {cfg.cost_model}"
-    )
-    with tqdm(total=round(cfg.duration_s * 1000), unit="ms", desc="simulated", leave=False) as bar:
-        result = run_episode(cfg, progress=bar.update)
+    viewer = open_viewer(viewer_kind, viewer_save)
+    try:
+        with tqdm(total=round(cfg.duration_s * 1000), unit="ms", desc="simulated", leave=False) as bar:
+            result = run_episode(cfg, progress=bar.update, viewer=viewer)
+    finally:
+        if viewer is not None:
+            viewer.close()
     summary = summarize(result)
     paths = write_outputs(result, out, summary)
-    print_summary(summary)
     print(f"figure: {paths['motion']}\nsummary: {paths['summary']}\nlog: {paths['log']}")
-    return 0
+    return summary
+
+
+def print_comparison(ours: dict, paper_law: dict) -> None:
+    """One line each: our controller, the paper's literal law on the same episode, the paper's numbers."""
+    c = ours["config"]
+    print(f"\n{'':40}{'servo pos mm':>13}{'rot deg':>9}{'lag s':>8}  tracking")
+    for name, s in (("ours (feed-forward within arm limits)", ours), ("paper's law, Eq. (5)-(6), same run", paper_law)):
+        held = "held" if s["completed"] else f"lost at {s['simulated_s']:.2f} s"
+        print(f"{name:40}{s['servo_pos_rms_mm']:13.2f}{s['servo_rot_rms_deg']:9.2f}{s['lag_s']:8.3f}  {held}")
+    row = PAPER_TABLE.get((c["object"], round(c["distance_m"], 2), c["trajectory"], c["tracker"]))
+    if row:
+        print(f"{'paper, Table I/II (its real bench)':40}{row[0]:13.2f}{row[1]:9.2f}{'≈0.15':>8}")
 
 
 def print_summary(s: dict) -> None:
@@ -114,15 +204,26 @@ def print_summary(s: dict) -> None:
         print(f"{'paper, Table I/II (real bench)':34}{row[0]:12.2f}{row[1]:14.2f}")
     print(f"camera lag behind target {s['lag_s']:.3f} s (paper ≈ 0.15 s); camera rotation mean "
           f"{s['camera_rot_mean_deg']:.2f}° (paper 1.89° at Z = 0.6 m)")  # fmt: skip
+    t = s["timing"]
+    print(f"timing: sensing {t['sensing_latency_ms']:.1f} ms, tracker step {t['tracker_step_mean_ms']:.2f} ms, "
+          f"control every {t['control_period_ms']:g} ms, "
+          f"Panda {t['panda_rate_hz']:g} Hz + {t['panda_latency_ms']:g} ms, "
+          f"UR5e {t['ur_rate_hz']:g} Hz + {t['ur_latency_ms']:g} ms; command cut to the arm's reach "
+          f"{100 * s['arm_limited_fraction']:.0f} % of the time")  # fmt: skip
     for w in s["watchdog"]:
         print(f"watchdog: no fresh pose since {w['last_pose_s']:.3f} s, braking from {w['start_s']:.3f} s, "
               f"at rest {w['zero_s']} s, servoing again {w['end_s']} s")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.sim and (args.viewer or args.viewer_save):
+        raise ValueError("--viewer and --viewer-save apply to --sim (and evservo track), not yet to the real loop")
     if not args.sim:
         from evservo.commands.servo_real import run_real
 
+        given = sim_options_given(args)
+        if given:
+            raise ValueError(f"{', '.join(given)} only apply with --sim (the simulated bench), not with --robot")
         return run_real(args)
     given = [f"--{name.replace('_', '-')}" for name in REAL_ONLY if getattr(args, name) not in (None, False)]
     if given:
@@ -144,7 +245,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="ur:HOST|franka:HOST|sim",
         help="the real loop on a UR (ur-rtde) or Franka (franky) arm, or on a kinematic stand-in arm (sim)",
     )
-    add_episode_arguments(s, distance=0.9, speed=0.4, duration=20.0)
+    add_episode_arguments(s, speed_mps=0.4)
+    from dataclasses import fields
+
+    from evservo.realloop import RealLoopConfig
+
+    real = {f.name: f.default for f in fields(RealLoopConfig)}
     r = s.add_argument_group("real loop (--robot)")
     r.add_argument("--camera", metavar="prophesee[:SERIAL]|dv[:SERIAL]|FILE",
                    help="live camera, or an event file replayed at real time")  # fmt: skip
@@ -153,11 +259,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--init-pose", metavar="x,y,z,qx,qy,qz,qw", help="object in camera at start (default: config's)")
     r.add_argument("--desired-pose", metavar="x,y,z,qx,qy,qz,qw",
                    help="object in camera to servo to (default: the tracked pose when servoing starts)")  # fmt: skip
-    r.add_argument("--settle", type=float, help="tracking before the arm moves, s from the first pose (default 0.5)")
-    r.add_argument("--stiffness", type=float, help="k of Eq. 6, 1/s² (default 20, the paper's)")
-    r.add_argument("--rate", type=float, help="control rate, Hz (default 500)")
-    r.add_argument("--stale-after", type=float, help="watchdog: stop when no fresh pose for this long, s (default 0.1)")
-    r.add_argument("--replay-speed", type=float, help="replay FILE this many times faster than real time (default 1)")
+    r.add_argument(
+        "--settle",
+        type=float,
+        help=f"tracking before the arm moves, s from the first pose (default {real['settle_s']})",
+    )
+    r.add_argument("--stiffness", type=float, help=f"k of Eq. 6, 1/s² (default {real['stiffness']}, the paper's)")
+    r.add_argument("--rate", type=float, help=f"control rate, Hz (default {real['rate_hz']})")
+    r.add_argument(
+        "--stale-after",
+        type=float,
+        help=f"watchdog: stop when no fresh pose for this long, s (default {real['stale_after_s']})",
+    )
+    r.add_argument(
+        "--replay-speed",
+        type=float,
+        help=f"replay FILE this many times faster than real time (default {real['speed']})",
+    )
     r.add_argument("--dry-run", action="store_true", help="run everything but never move the arm (commands logged)")
     r.add_argument("--realtime", choices=("enforce", "ignore"),
                    help="franka: libfranka's realtime check (default enforce; ignore for franky-sim)")  # fmt: skip

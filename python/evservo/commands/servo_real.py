@@ -12,73 +12,27 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-ROBOT_KINDS = ("ur", "franka", "sim")
-DEFAULTS = {"settle": 0.5, "stiffness": 20.0, "rate": 500.0, "stale_after": 0.1, "replay_speed": 1.0}
+#: Options of the real loop that set a :class:`~evservo.realloop.RealLoopConfig` field (its defaults hold).
+CONFIG_OPTIONS = {"settle": "settle_s", "stiffness": "stiffness", "rate": "rate_hz", "stale_after": "stale_after_s",
+                  "replay_speed": "speed"}  # fmt: skip
 
 
 class InputError(ValueError):
     """Bad command-line input (exit code 2)."""
 
 
-@dataclass(frozen=True)
-class RobotSpec:
-    kind: str  # ur, franka, sim
-    host: str | None
-
-
-def parse_robot(spec: str) -> RobotSpec:
-    """``ur:HOST``, ``franka:HOST`` or ``sim``."""
-    kind, _, host = spec.partition(":")
-    kind = kind.strip().lower()
-    if kind not in ROBOT_KINDS:
-        raise InputError(f"--robot {spec!r}: want ur:HOST, franka:HOST or sim")
-    if kind == "sim":
-        if host:
-            raise InputError(f"--robot {spec!r}: 'sim' takes no host")
-        return RobotSpec("sim", None)
-    if not host.strip():
-        raise InputError(f"--robot {spec!r}: give the controller's address, e.g. {kind}:192.168.1.10")
-    return RobotSpec(kind, host.strip())
-
-
 def _pose(text: str, option: str) -> np.ndarray:
-    from evservo.commands.track import parse_pose
+    from evservo.runtime.inputs import parse_object_pose
 
     try:
-        T = parse_pose(text)
+        return parse_object_pose(text, option)
     except ValueError as err:
-        raise InputError(str(err).replace("--init-pose", option)) from None
-    if T[2, 3] <= 0:
-        raise InputError(f"{option}: the object must be in front of the camera (z > 0), got z = {T[2, 3]}")
-    return T
-
-
-def _option(args: argparse.Namespace, name: str) -> Any:
-    v = getattr(args, name)
-    return DEFAULTS[name] if v is None else v
-
-
-def _open_arm(spec: RobotSpec, rig: Any, dry_run: bool, realtime: str) -> Any:
-    from evservo.robots.kinematic import KinematicArm
-
-    T_e_c = rig.T_e_c if rig else None
-    limits = rig.limits if rig else None
-    workspace = rig.workspace if rig else None
-    if spec.kind == "sim":
-        return KinematicArm(T_e_c=T_e_c, limits=limits, workspace=workspace, dry_run=dry_run)
-    if spec.kind == "ur":
-        from evservo.robots.ur import UrArm
-
-        return UrArm(spec.host, T_e_c=T_e_c, limits=limits, workspace=workspace, dry_run=dry_run)
-    from evservo.robots.franka import FrankaArm
-
-    return FrankaArm(spec.host, T_e_c=T_e_c, limits=limits, workspace=workspace, dry_run=dry_run, realtime=realtime)
+        raise InputError(str(err)) from None
 
 
 def _recording(path: Path) -> Any:
@@ -97,24 +51,29 @@ def run_real(args: argparse.Namespace) -> int:
 
 def _run_real(args: argparse.Namespace) -> int:
     from evservo import cameras, io
-    from evservo.realloop import RealLoopConfig, run_real_loop, summarize, write_outputs
+    from evservo.outputs import prepare_out_dir
+    from evservo.realloop import OUTPUTS, RealLoopConfig, run_real_loop, summarize, write_outputs
     from evservo.robots.config import load_rig_config
+    from evservo.robots.open import open_arm, parse_robot
+    from evservo.runtime.inputs import resolve_camera
     from evservo.tracking import Tracker
 
-    spec = parse_robot(args.robot)
+    try:
+        spec = parse_robot(args.robot)
+    except ValueError as err:
+        raise InputError(str(err)) from None
     if args.camera is None:
         raise InputError("--robot needs --camera prophesee|dv|FILE")
     if spec.kind != "sim" and args.config is None:
         raise InputError(f"--robot {spec.kind}:… needs --config RIG.yaml (camera intrinsics, hand-eye, limits)")
     if spec.kind != "franka" and args.realtime is not None:
         raise InputError("--realtime applies to franka:HOST only")
+    # The outputs are checked before anything opens the camera or the arm: never a failure after a run.
+    out = prepare_out_dir(Path(args.out) if args.out else Path("runs") / "servo-real", stale=OUTPUTS)
     rig = load_rig_config(args.config) if args.config else None
-    speed = _option(args, "replay_speed")
-    cfg = RealLoopConfig(
-        rate_hz=_option(args, "rate"), settle_s=_option(args, "settle"), duration_s=args.duration,
-        stiffness=_option(args, "stiffness"), feedforward=args.feedforward, stale_after_s=_option(args, "stale_after"),
-        speed=speed, dry_run=args.dry_run,
-    )  # fmt: skip
+    given = {field: getattr(args, opt) for opt, field in CONFIG_OPTIONS.items() if getattr(args, opt) is not None}
+    cfg = RealLoopConfig(duration_s=args.duration, feedforward=args.feedforward, dry_run=args.dry_run, **given)
+    speed = cfg.speed
     init = _pose(args.init_pose, "--init-pose") if args.init_pose else None
     desired = _pose(args.desired_pose, "--desired-pose") if args.desired_pose else None
 
@@ -123,20 +82,18 @@ def _run_real(args: argparse.Namespace) -> int:
     rec = None if live else (_recording(Path(args.camera)) if Path(args.camera).is_file() else None)
     source = cameras.open_source(args.camera, speed=speed)
     try:
-        camera = rig.camera if rig else (rec.camera if rec else None)
-        if camera is None and not live and (source.width, source.height) == (1280, 720):
-            from evservo import _evcore
-
-            camera = _evcore.Camera.imx636()  # as `evservo track` assumes for a 1280x720 file
-            print(f"note: no --config: taking the paper's IMX636 intrinsics for {args.camera}")
-        if camera is None:
+        if live and rig is None:
             raise InputError(f"{args.camera} carries no camera intrinsics: give --config RIG.yaml")
-        if (camera.width, camera.height) != (source.width, source.height):
-            where = f"rig config {rig.path}" if rig else "the recording"
-            raise InputError(
-                f"the camera in {where} is {camera.width}x{camera.height} but {args.camera} is "
-                f"{source.width}x{source.height}"
-            )
+        notes: list[str] = []
+        try:
+            camera = resolve_camera(
+                args.camera, (source.width, source.height), rig.camera if rig else None,
+                rec.camera if rec else None, "give --config RIG.yaml", notes,
+            )  # fmt: skip
+        except ValueError as err:
+            raise InputError(f"{err}" + (f" (rig config {rig.path})" if rig else "")) from None
+        for line in notes:
+            print(f"note: {line}")
         model = args.model or (rig.model if rig else None) or (rec.object if rec else None)
         if model is None:
             raise InputError("give --model (a built-in name or a mesh path) or object.model in the rig config")
@@ -150,8 +107,7 @@ def _run_real(args: argparse.Namespace) -> int:
         if desired is None and rig is not None:
             desired = rig.desired_pose
         tracker = Tracker(camera, model, init, solver=args.tracker)
-        realtime = args.realtime or "enforce"
-        arm = _open_arm(spec, rig, args.dry_run, realtime)
+        arm = open_arm(spec, rig, args.dry_run, args.realtime or "enforce")
         meta = {
             "robot": args.robot, "camera": args.camera, "model": str(model), "tracker": args.tracker,
             "rig_config": str(rig.path) if rig else None, "T_c_o_init": init.tolist(), "replay_speed": speed,
@@ -167,7 +123,6 @@ def _run_real(args: argparse.Namespace) -> int:
             arm.close()
     finally:
         source.close()
-    out = Path(args.out) if args.out else Path("runs") / "servo-real"
     summary = summarize(result, gt=(rec.gt_t_us, rec.gt_T) if rec is not None else None)
     paths = write_outputs(result, out, summary)
     print_real_summary(summary)

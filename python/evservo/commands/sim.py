@@ -7,8 +7,10 @@ import argparse
 
 
 def run_record(args: argparse.Namespace) -> int:
+    from evservo.outputs import check_out_file
     from evservo.sim.record import RecordConfig, record
 
+    check_out_file(args.out, (".h5", ".hdf5"))
     config = RecordConfig(
         object=args.object, trajectory=args.trajectory, speed_mps=args.speed, rot_rate_dps=args.rot_rate,
         distance_m=args.distance, duration_s=args.duration, seed=args.seed, preset=args.preset,

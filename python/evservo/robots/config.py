@@ -7,8 +7,8 @@ typo cannot silently drop a limit)::
       translation: [0.0, 0.05, 0.1]        # metres
       quaternion: [0.0, 0.0, 0.0, 1.0]     # x, y, z, w (unit; normalised on load)
       # or instead of both:  matrix: [[r11, r12, r13, tx], ..., [0, 0, 0, 1]]
-    camera:
-      width: 1280                  # pixels
+    camera:                        # the camera-file layout of evservo.camera_file (its OpenCV and ROS
+      width: 1280                  # camera_info dialects too)
       height: 720
       fx: 1163.59                  # pixels; or instead of fx, fy, cx, cy:  K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]
       fy: 1173.48
@@ -44,7 +44,8 @@ import yaml
 
 from evservo import geometry
 from evservo._evcore import Camera
-from evservo.control import CartesianLimits
+from evservo.camera_file import CameraFileError, camera_from_mapping
+from evservo.limits import CartesianLimits
 from evservo.robots.safety import Workspace
 
 __all__ = ["RigConfig", "RigConfigError", "load_rig_config"]
@@ -101,12 +102,6 @@ class _Reader:
             raise self.fail(f"{where}.{key}", f"must be a finite number, got {v!r}")
         return float(v)
 
-    def integer(self, sec: dict, where: str, key: str) -> int:
-        v = self.number(sec, where, key)
-        if v != int(v) or v < 1:
-            raise self.fail(f"{where}.{key}", f"must be a positive integer, got {sec[key]!r}")
-        return int(v)
-
     def array(self, sec: dict, where: str, key: str, shapes: tuple[tuple[int, ...], ...]) -> np.ndarray:
         if key not in sec:
             raise self.fail(f"{where}.{key}", "missing")
@@ -139,26 +134,12 @@ def _hand_eye(r: _Reader, data: dict) -> np.ndarray:
 
 
 def _camera(r: _Reader, data: dict) -> Camera:
-    sec = r.section(data, "camera", {"width", "height", "fx", "fy", "cx", "cy", "K", "distortion"})
-    assert sec is not None
-    width, height = r.integer(sec, "camera", "width"), r.integer(sec, "camera", "height")
-    if "K" in sec:
-        if any(k in sec for k in ("fx", "fy", "cx", "cy")):
-            raise r.fail("camera", "give either K or fx, fy, cx, cy, not both")
-        K = r.array(sec, "camera", "K", ((3, 3),))
-        if K[0, 1] != 0 or K[1, 0] != 0 or np.any(K[2] != [0, 0, 1]):
-            raise r.fail("camera.K", "must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)")
-        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    else:
-        fx, fy, cx, cy = (r.number(sec, "camera", k) for k in ("fx", "fy", "cx", "cy"))
-    dist = np.zeros(5)
-    if sec.get("distortion") is not None:
-        d = r.array(sec, "camera", "distortion", ((4,), (5,)))
-        dist[: len(d)] = d
+    if data.get("camera") is None:
+        raise r.fail("camera", "missing section")
     try:
-        return Camera(width, height, float(fx), float(fy), float(cx), float(cy), tuple(float(x) for x in dist))
-    except (ValueError, TypeError) as err:
-        raise r.fail("camera", str(err)) from err
+        return camera_from_mapping(data["camera"], f"rig config {r.path}: camera.")
+    except CameraFileError as err:
+        raise RigConfigError(str(err)) from None
 
 
 def _limits(r: _Reader, data: dict) -> CartesianLimits:

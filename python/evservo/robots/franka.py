@@ -22,9 +22,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from evservo import geometry
-from evservo.control import CartesianLimits
-from evservo.robots.safety import SafetyGate, Workspace
+from evservo.limits import CartesianLimits
+from evservo.robots.gated import GatedArm
+from evservo.robots.safety import Workspace
 
 __all__ = ["FrankaArm"]
 
@@ -39,7 +39,7 @@ def _franky() -> Any:
     return franky
 
 
-class FrankaArm:
+class FrankaArm(GatedArm):
     """A Franka arm streamed with Cartesian velocity motions through a :class:`SafetyGate`.
 
     ``host``: FCI address of the robot (or of a franky-sim server). ``T_e_c``: camera frame in the EE
@@ -68,12 +68,9 @@ class FrankaArm:
         if realtime not in ("enforce", "ignore"):
             raise ValueError("realtime must be 'enforce' or 'ignore'")
         self._fr = _franky()
+        super().__init__(f"the Franka robot at {host}", T_e_c, limits, dry_run)
         self.host = host
-        self._T_e_c = geometry.as_pose(np.eye(4) if T_e_c is None else T_e_c, "T_e_c")
-        self.limits = limits or CartesianLimits()
-        self.dry_run = dry_run
         self._hold_ms = max(1, math.ceil(watchdog_s * 1000.0))
-        self._lost: str | None = None
         config = self._fr.RealtimeConfig.Enforce if realtime == "enforce" else self._fr.RealtimeConfig.Ignore
         try:
             self.robot = (robot_factory or self._fr.Robot)(
@@ -81,25 +78,13 @@ class FrankaArm:
             )
         except self._fr.Exception as err:
             raise ConnectionError(f"cannot connect to the Franka robot at {host}: {err}") from err
-        self.gate = SafetyGate(
-            self._send, self._halt, self.limits, workspace, watchdog_s, dry_run, name=f"Franka {host}"
-        )
-        self.gate.open()
+        self._open_gate(f"Franka {host}", workspace, watchdog_s)
 
     # -- Arm protocol ----------------------------------------------------------------------------
-
-    @property
-    def T_e_c(self) -> np.ndarray:
-        """Camera frame in the EE frame (4×4, metres)."""
-        return self._T_e_c.copy()
 
     def T_w_e(self) -> np.ndarray:
         """EE pose in the base frame (4×4, metres)."""
         return np.array(self._call(lambda r: r.current_cartesian_state.pose.end_effector_pose.matrix), dtype=float)
-
-    def T_w_c(self) -> np.ndarray:
-        """Camera pose in the base frame (4×4, metres)."""
-        return self.T_w_e() @ self._T_e_c
 
     def joint_positions(self) -> np.ndarray:
         """Joint positions (rad)."""
@@ -111,21 +96,11 @@ class FrankaArm:
         tw = self._call(lambda r: r.current_cartesian_state.velocity.end_effector_twist)
         return np.concatenate([np.asarray(tw.linear, dtype=float), np.asarray(tw.angular, dtype=float)])
 
-    def command_twist(self, v_e_w: np.ndarray, dt_s: float) -> None:
-        """Send EE twist ``v_e_w`` (base frame, (6,), m/s and rad/s), limited by the gate, for
-        ``dt_s`` seconds. Raises ``ConnectionError`` (after a stop attempt) if the link is lost and
-        ``RuntimeError`` on a control error (reflex, rejected motion)."""
-        p = self.T_w_e()[:3, 3]
-        try:
-            self.gate.command(v_e_w, p, dt_s)
-        except (self._fr.NetworkException, self._fr.ProtocolException) as err:
+    def _on_command_error(self, err: Exception) -> None:
+        if isinstance(err, (self._fr.NetworkException, self._fr.ProtocolException)):
             self._lose(str(err))
-        except self._fr.Exception as err:
+        if isinstance(err, self._fr.Exception):
             raise RuntimeError(f"Franka at {self.host} refused the motion: {err} (see FrankaArm.recover)") from err
-
-    def stop(self) -> None:
-        """Decelerate to rest within franky's dynamics limits."""
-        self.gate.stop()
 
     def recover(self) -> bool:
         """Run the robot's automatic error recovery (after a reflex); returns whether it succeeded."""
@@ -133,41 +108,26 @@ class FrankaArm:
 
     # -- connection ------------------------------------------------------------------------------
 
-    def close(self) -> None:
-        """Stop the arm, wait (at most 2 s) for the motion to end and drop the connection (idempotent)."""
+    def _disconnect(self) -> None:
+        """Wait (at most 2 s) for the motion to end, then drop the robot (franky has no disconnect
+        call: the connection closes when its robot object goes away)."""
         if self.robot is None:
             return
-        self.gate.close()
         if self._lost is None and not self.dry_run:
             try:
                 self.robot.join_motion(timeout=2.0)
             except self._fr.Exception as err:
                 log.warning("Franka %s: motion ended with %s", self.host, err)
-        # franky has no disconnect call: the connection closes when its robot object goes away.
         self.robot = None
 
-    def __enter__(self) -> FrankaArm:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
     def _call(self, get: Callable[[Any], Any]) -> Any:
-        if self._lost is not None:
-            raise ConnectionError(f"connection to the Franka robot at {self.host} lost: {self._lost}")
+        self._check_link()
         if self.robot is None:
             raise ConnectionError(f"FrankaArm for {self.host} is closed")
         try:
             return get(self.robot)
         except (self._fr.NetworkException, self._fr.ProtocolException) as err:
             self._lose(str(err))
-
-    def _lose(self, why: str) -> None:
-        if self._lost is None:
-            self._lost = why
-            log.error("Franka %s: %s; stopping", self.host, why)
-            self.gate.stop(f"connection lost: {why}")
-        raise ConnectionError(f"connection to the Franka robot at {self.host} lost: {self._lost}")
 
     # -- what the gate calls ---------------------------------------------------------------------
 

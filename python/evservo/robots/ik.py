@@ -3,13 +3,14 @@
 For a requested end-effector twist ``v`` (world frame, m/s and rad/s) and the 6×n Jacobian ``J`` of the
 same frame (``v = J q̇``), find the joint velocities ``q̇`` that minimise
 
-    ‖J q̇ − v‖² + λ‖q̇‖² + μ‖q̇ − g (q_rest − q)‖²
+    ‖J q̇ − v‖²_W + λ‖q̇‖² + μ‖q̇ − g (q_rest − q)‖²
 
 subject to, per joint, the velocity limit, the acceleration limit over the command period
 (``|q̇ − q̇_now| ≤ q̈_max·dt``) and a position limit expressed as a braking bound (the joint can still
 stop at its acceleration limit before reaching the end of its range). λ damps singularities; the small
 posture term (μ, towards ``q_rest``) uses the redundancy of a 7-joint arm and keeps the joints away from
-their limits. All constraints are boxes, which DAQP handles natively.
+their limits. ``W`` (identity by default) weighs the twist's components against each other where the
+limits do not let all of them through. All constraints are boxes, which DAQP handles natively.
 """
 
 from __future__ import annotations
@@ -54,19 +55,22 @@ def solve_joint_velocities(
     damping: float = 1e-4,
     posture_weight: float = 1e-3,
     posture_gain: float = 1.0,
+    weights: np.ndarray | None = None,
 ) -> np.ndarray:
     """Joint velocities (rad/s) realising twist ``v`` (6,) as closely as the limits allow.
 
     ``J``: 6×n Jacobian (rows: linear then angular, world frame). ``q``, ``qd``: current joint positions
     (rad) and velocities (rad/s). ``dt_s``: period over which the result is held (s). ``q_rest``: posture
-    to drift towards in the null space (rad; none: no posture term).
+    to drift towards in the null space (rad; none: no posture term). ``weights``: 6×6 symmetric positive
+    definite ``W`` of the twist residual (units of the twist's rows; none: identity).
     """
     n = limits.n
     if J.shape != (6, n):
         raise ValueError(f"J must be 6x{n}")
     lb, ub = joint_velocity_bounds(q, qd, dt_s, limits)
-    P = J.T @ J + damping * np.eye(n)
-    c = -J.T @ v
+    JW = J.T if weights is None else J.T @ weights
+    P = JW @ J + damping * np.eye(n)
+    c = -JW @ v
     if q_rest is not None:
         P += posture_weight * np.eye(n)
         c -= posture_weight * posture_gain * (q_rest - q)

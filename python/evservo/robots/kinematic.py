@@ -21,8 +21,10 @@ from collections.abc import Callable
 import numpy as np
 
 from evservo import geometry
-from evservo.control import CartesianLimits, rotmat
-from evservo.robots.safety import SafetyGate, Workspace
+from evservo.geometry import rotmat
+from evservo.limits import CartesianLimits
+from evservo.robots.gated import GatedArm
+from evservo.robots.safety import Workspace
 
 __all__ = ["DEFAULT_START", "KinematicArm"]
 
@@ -31,7 +33,7 @@ __all__ = ["DEFAULT_START", "KinematicArm"]
 DEFAULT_START = np.array([[1.0, 0.0, 0.0, 0.4], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.4], [0.0, 0.0, 0.0, 1.0]])
 
 
-class KinematicArm:
+class KinematicArm(GatedArm):
     """An ideal velocity-controlled arm behind a :class:`SafetyGate` (see the module docstring).
 
     ``T_w_e0``: start pose of the end effector (4×4, metres; default :data:`DEFAULT_START`, or the
@@ -54,18 +56,15 @@ class KinematicArm:
             T_w_e0 = DEFAULT_START.copy()
             if workspace is not None:
                 T_w_e0[:3, 3] = 0.5 * (workspace.lo + workspace.hi)
+        super().__init__("the kinematic arm", T_e_c, limits, dry_run)
         self._T = geometry.as_pose(T_w_e0, "T_w_e0").copy()
-        self._T_e_c = geometry.as_pose(np.eye(4) if T_e_c is None else T_e_c, "T_e_c")
-        self.limits = limits or CartesianLimits()
-        self.dry_run = dry_run
         self._clock = clock
         self._lock = threading.Lock()
         self._v = np.zeros(6)
         self._t = clock()
         self.commands = 0
         self.halts = 0
-        self.gate = SafetyGate(self._send, self._halt, self.limits, workspace, watchdog_s, dry_run, name="sim arm")
-        self.gate.open()
+        self._open_gate("sim arm", workspace, watchdog_s)
 
     # -- integration ---------------------------------------------------------------------------
 
@@ -93,20 +92,11 @@ class KinematicArm:
 
     # -- Arm protocol --------------------------------------------------------------------------
 
-    @property
-    def T_e_c(self) -> np.ndarray:
-        """Camera frame in the end-effector frame (4×4, metres)."""
-        return self._T_e_c.copy()
-
     def T_w_e(self) -> np.ndarray:
         """End-effector pose in the world now (4×4, metres)."""
         with self._lock:
             self._advance()
             return self._T.copy()
-
-    def T_w_c(self) -> np.ndarray:
-        """Camera pose in the world now (4×4, metres)."""
-        return self.T_w_e() @ self._T_e_c
 
     def joint_positions(self) -> np.ndarray:
         """A kinematic arm has no joints: an empty array."""
@@ -116,21 +106,3 @@ class KinematicArm:
         """The end-effector twist in force (world frame; m/s, rad/s)."""
         with self._lock:
             return self._v.copy()
-
-    def command_twist(self, v_e_w: np.ndarray, dt_s: float) -> None:
-        """Hold end-effector twist ``v_e_w`` (world frame, (6,)), limited by the gate, from now on."""
-        self.gate.command(v_e_w, self.T_w_e()[:3, 3], dt_s)
-
-    def stop(self) -> None:
-        """Stop at once (an ideal arm)."""
-        self.gate.stop()
-
-    def close(self) -> None:
-        """Stop and end the gate's watchdog (idempotent)."""
-        self.gate.close()
-
-    def __enter__(self) -> KinematicArm:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from evservo.limits import CartesianLimits
+
 
 @dataclass(frozen=True)
 class JointLimits:
@@ -51,3 +53,8 @@ UR5E = JointLimits(
     qd_max=np.full(6, np.pi),
     qdd_max=np.full(6, 8.0),
 )
+
+# The Panda's Cartesian limits of the end effector (Franka FCI): 1.7 m/s, 2.5 rad/s, 13 m/s², 25 rad/s².
+# The controller may use them in full only when it also checks each command against the joint limits
+# (evservo.robots.reach); CartesianLimits' defaults are half of them for a controller that does not.
+PANDA_CARTESIAN = CartesianLimits(max_lin_vel=1.7, max_ang_vel=2.5, max_lin_acc=13.0, max_ang_acc=25.0)

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evservo.control import CartesianLimits
+from evservo.limits import CartesianLimits
 
 __all__ = ["GateRecord", "SafetyGate", "Workspace"]
 

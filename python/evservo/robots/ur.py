@@ -26,9 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from evservo import geometry
-from evservo.control import CartesianLimits, rotmat
-from evservo.robots.safety import SafetyGate, Workspace
+from evservo.geometry import rotmat
+from evservo.limits import CartesianLimits
+from evservo.robots.gated import GatedArm
+from evservo.robots.safety import Workspace
 
 __all__ = ["RECEIVE_VARIABLES", "UrArm"]
 
@@ -61,7 +62,7 @@ def pose_from_rtde(x: list[float] | np.ndarray) -> np.ndarray:
     return T
 
 
-class UrArm:
+class UrArm(GatedArm):
     """A UR e-Series arm streamed with ``speedL`` through a :class:`SafetyGate`.
 
     ``host``: controller address. ``T_e_c``: camera frame in the TCP frame (4×4, metres).
@@ -89,16 +90,13 @@ class UrArm:
     ) -> None:
         if not (state_timeout_s > 0 and controller_watchdog_hz > 0):
             raise ValueError("state_timeout_s and controller_watchdog_hz must be > 0")
+        super().__init__(f"the UR controller at {host}", T_e_c, limits, dry_run)
         self.host = host
-        self._T_e_c = geometry.as_pose(np.eye(4) if T_e_c is None else T_e_c, "T_e_c")
-        self.limits = limits or CartesianLimits()
-        self.dry_run = dry_run
         self.state_timeout_s = float(state_timeout_s)
         if receive_factory is None or (control_factory is None and not dry_run):
             default_receive, default_control = _ur_rtde()
             receive_factory = receive_factory or default_receive
             control_factory = control_factory or default_control
-        self._lost: str | None = None
         self._state_lock = threading.Lock()
         self._last_stamp: float | None = None
         self._last_stamp_change = time.monotonic()
@@ -114,26 +112,13 @@ class UrArm:
         except Exception as err:
             self._disconnect()
             raise ConnectionError(f"cannot connect to the UR controller at {host}: {err}") from err
-        self.gate = SafetyGate(
-            self._speed_l, self._speed_stop, self.limits, workspace, watchdog_s, dry_run, name=f"UR {host}",
-            tick=None if dry_run else self._kick,
-        )  # fmt: skip
-        self.gate.open()
+        self._open_gate(f"UR {host}", workspace, watchdog_s, tick=None if dry_run else self._kick)
 
     # -- Arm protocol ----------------------------------------------------------------------------
-
-    @property
-    def T_e_c(self) -> np.ndarray:
-        """Camera frame in the TCP frame (4×4, metres)."""
-        return self._T_e_c.copy()
 
     def T_w_e(self) -> np.ndarray:
         """TCP pose in the base frame (4×4, metres), from the latest RTDE state."""
         return pose_from_rtde(self._read(lambda r: r.getActualTCPPose()))
-
-    def T_w_c(self) -> np.ndarray:
-        """Camera pose in the base frame (4×4, metres)."""
-        return self.T_w_e() @ self._T_e_c
 
     def joint_positions(self) -> np.ndarray:
         """Joint positions (rad), from the latest RTDE state."""
@@ -143,38 +128,21 @@ class UrArm:
         """Measured TCP twist (base frame; m/s, rad/s)."""
         return np.asarray(self._read(lambda r: r.getActualTCPSpeed()), dtype=float)
 
-    def command_twist(self, v_e_w: np.ndarray, dt_s: float) -> None:
-        """Send TCP twist ``v_e_w`` (base frame, (6,), m/s and rad/s), limited by the gate, to be held
-        for ``dt_s`` seconds. Raises ``ConnectionError`` (after a stop attempt) if the link is lost,
-        ``RuntimeError`` if the arm is not running or is in a safety stop."""
-        p = self.T_w_e()[:3, 3]
-        if not self.dry_run:
-            mode, safety = self._read(lambda r: (r.getRobotMode(), r.getSafetyMode()))
-            if mode != _ROBOT_RUNNING or safety not in _SAFETY_OK:
-                self.gate.stop("arm not ready")
-                raise RuntimeError(f"UR at {self.host} is not ready: robot_mode {mode} (want 7, running), "
-                                   f"safety_mode {safety} (want 1 normal or 2 reduced)")  # fmt: skip
-        try:
-            self.gate.command(v_e_w, p, dt_s)
-        except RuntimeError as err:
+    def _check_ready(self) -> None:
+        """Refuse (after a stop) to command an arm that is not running or is in a safety stop."""
+        if self.dry_run:
+            return
+        mode, safety = self._read(lambda r: (r.getRobotMode(), r.getSafetyMode()))
+        if mode != _ROBOT_RUNNING or safety not in _SAFETY_OK:
+            self.gate.stop("arm not ready")
+            raise RuntimeError(f"UR at {self.host} is not ready: robot_mode {mode} (want 7, running), "
+                               f"safety_mode {safety} (want 1 normal or 2 reduced)")  # fmt: skip
+
+    def _on_command_error(self, err: Exception) -> None:
+        if isinstance(err, RuntimeError):  # ur_rtde reports a failed speedL as RuntimeError
             self._lose(f"speedL failed: {err}")
 
-    def stop(self) -> None:
-        """Decelerate to rest (``speedStop`` at the linear acceleration limit)."""
-        self.gate.stop()
-
     # -- connection ------------------------------------------------------------------------------
-
-    def close(self) -> None:
-        """Stop the arm, then close both RTDE connections (idempotent)."""
-        self.gate.close()
-        self._disconnect()
-
-    def __enter__(self) -> UrArm:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def _disconnect(self) -> None:
         for iface in (self._control, self._receive):
@@ -188,8 +156,7 @@ class UrArm:
 
     def _read(self, get: Callable[[Any], Any]) -> Any:
         """Read state after checking the link is alive and fresh."""
-        if self._lost is not None:
-            raise ConnectionError(f"connection to the UR controller at {self.host} lost: {self._lost}")
+        self._check_link()
         r = self._receive
         if r is None:
             raise ConnectionError(f"UrArm for {self.host} is closed")
@@ -209,21 +176,13 @@ class UrArm:
         except RuntimeError as err:  # ur_rtde reports socket failures as RuntimeError
             self._lose(str(err))
 
-    def _lose(self, why: str) -> None:
-        """Mark the link lost, try to stop the arm, and raise ``ConnectionError`` naming the host."""
-        if self._lost is None:
-            self._lost = why
-            log.error("UR %s: %s; stopping", self.host, why)
-            self.gate.stop(f"connection lost: {why}")
-        raise ConnectionError(f"connection to the UR controller at {self.host} lost: {self._lost}")
-
     # -- what the gate calls ---------------------------------------------------------------------
 
-    def _speed_l(self, v: np.ndarray, dt_s: float) -> None:
+    def _send(self, v: np.ndarray, dt_s: float) -> None:  # speedL
         if not self._control.speedL([float(x) for x in v], float(self.limits.max_lin_acc), 0.0):
             raise RuntimeError("speedL was not accepted by the controller")
 
-    def _speed_stop(self) -> None:
+    def _halt(self) -> None:  # speedStop
         if self._control is not None:
             self._control.speedStop(float(self.limits.max_lin_acc))
 

@@ -2,12 +2,13 @@
 
 Everything runs on the scene's simulated 1 kHz clock, in this order per millisecond tick ``t``:
 
-1. the UR5e is commanded (every 2 ms, RTDE's rate) to carry the target along the trajectory: a
-   displacement of the object in the world frame from its start pose, entered with a smooth
-   velocity ramp;
+1. the UR5e is commanded (every ``ur_period_s``, 2 ms: RTDE's rate) to carry the target along the
+   trajectory: a displacement of the object in the world frame from its start pose, entered with a
+   smooth velocity ramp; each command reaches the arm ``ur_latency_s`` later;
 2. the controller (:class:`~evservo.control.Pbvs`, every ``control_period_s``) reads the newest pose
-   the tracker has *published by t* and returns a camera twist, which the Panda's command path
-   resolves through the joint-limited QP every tick (1 kHz, like Franka's FCI). The controller's
+   the tracker has *published by t* and returns a camera twist, which is sent to the Panda every
+   ``panda_period_s`` (1 ms, like Franka's FCI), reaches it ``panda_latency_s`` later and is resolved
+   there through the joint-limited QP. The controller's
    velocity state is its own previous command, as mc_rtc integrates its QP's output, not the
    measured twist: the regularised IK realises ~1 % less than asked, and re-basing on that every
    2 ms would silently eat ~1 m/s² of the commanded acceleration;
@@ -31,27 +32,40 @@ Frames: w world, c camera optical frame, o object; ``T_a_b`` is b in a (4×4, me
 
 from __future__ import annotations
 
-import csv
-import json
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from evservo import _evcore, geometry, trajectories
 from evservo.control import Pbvs
+from evservo.geometry import pose_errors, rotation_from_first_rad
+from evservo.interrupt import INTERRUPTED, StopOnInterrupt
+from evservo.limits import CartesianLimits
+from evservo.outputs import make_out_dir
 from evservo.robots import PoseFollower, shift_twist
+from evservo.robots.delay import DelayedArm
+from evservo.robots.limits import PANDA_CARTESIAN
+from evservo.robots.reach import ReachableTwist
+from evservo.runtime.metrics import estimate_lag_s, rms
+from evservo.runtime.report import plot_motion, write_log, write_summary
+from evservo.runtime.watchdog import WatchdogSpell, spells_from_flags
 from evservo.sim.arms import ArmMeshes
 from evservo.sim.scene import DualArmScene
 from evservo.sim.sources import EVENT_SOURCES, EventSource, make_event_source
 from evservo.tracking import FRONTENDS, SOLVERS, Tracker
 
 COST_MODELS = ("measured", "fixed")
-TICK_US = 1000  # physics step, event batch and Panda command period
-UR_PERIOD_US = 2000
+PREDICTORS = ("velocity", "acceleration")
+TICK_US = 1000  # physics step and event batch
+#: Longest episode: the per-tick (1 kHz) record is preallocated, ~0.4 kB a tick.
+MAX_DURATION_S = 3600.0
+#: The files :func:`write_outputs` writes into an episode's directory.
+OUTPUTS = ("summary.json", "log.csv", "motion.png")
 
 
 @dataclass(frozen=True)
@@ -73,6 +87,16 @@ class EpisodeConfig:
     ``dropout_s``: ``(start, end)`` window whose events are lost (sensor or link failure).
     ``lost_pos_m``, ``lost_rot_deg``: tracking counts as lost, and the episode ends, once the estimate
     is this far from the truth at the estimate's time.
+    ``feedforward``: our controller (the target's motion fed forward, within what the Panda can deliver
+    at its configuration, image motion first, catch-up no faster than ``max_image_rate_rad_s``; the
+    camera up to the Panda's own Cartesian limits); off: the paper's literal Eq. (5)–(6) (within
+    :class:`~evservo.limits.CartesianLimits`' defaults, half of those). ``predictor``: how feed-forward
+    extrapolates the target across the pose's age and the Panda's command latency: ``"velocity"`` (constant velocity) or
+    ``"acceleration"`` (constant acceleration).
+    Timing (seconds): ``sensing_latency_s`` from an event to the tracker (3.5 ms, the paper's
+    measurement); the tracker's compute per ``cost_model``; the controller every ``control_period_s``;
+    each arm's command link: the UR5e (RTDE) commanded every ``ur_period_s`` with ``ur_latency_s``
+    from write to servo, the Panda (FCI) every ``panda_period_s`` with ``panda_latency_s``.
     ``render_arms``: draw the UR5e and the Panda into the rendered event camera too (their moving
     links occlude the scene and fire events; see :mod:`evservo.sim.arms`); needs ``event_source``
     ``"render"``.
@@ -95,6 +119,10 @@ class EpisodeConfig:
     event_source: str = "edges"
     sensing_latency_s: float = 0.0035
     control_period_s: float = 0.002
+    ur_period_s: float = 0.002
+    ur_latency_s: float = 0.003
+    panda_period_s: float = 0.001
+    panda_latency_s: float = 0.001
     stiffness: float = 20.0
     ramp_s: float = 0.5
     dropout_s: tuple[float, float] | None = None
@@ -102,6 +130,8 @@ class EpisodeConfig:
     lost_rot_deg: float = 15.0
     log_rate_hz: float = 100.0
     render_arms: bool = False
+    max_image_rate_rad_s: float = 0.5
+    predictor: str = "velocity"
 
     def __post_init__(self) -> None:
         if self.tracker not in SOLVERS:
@@ -114,10 +144,26 @@ class EpisodeConfig:
             raise ValueError(f"unknown event source {self.event_source!r}; choose one of {sorted(EVENT_SOURCES)}")
         if not (self.duration_s > 0 and self.distance_m > 0 and self.speed_mps >= 0 and self.ramp_s >= 0):
             raise ValueError("duration and distance must be > 0, speed and ramp >= 0")
+        numbers = dict(duration_s=self.duration_s, distance_m=self.distance_m, speed_mps=self.speed_mps,
+                       rot_rate_dps=self.rot_rate_dps, ramp_s=self.ramp_s, stiffness=self.stiffness)  # fmt: skip
+        for name, v in numbers.items():
+            if not np.isfinite(v):
+                raise ValueError(f"{name} must be finite, got {v}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        # The trajectory (a kind or a CSV file) is checked here, before any simulation is set up.
+        trajectories.make_trajectory(self.trajectory, speed_mps=self.speed_mps, rot_rate_dps=self.rot_rate_dps)
+        if self.duration_s > MAX_DURATION_S:
+            raise ValueError(f"duration must be at most {MAX_DURATION_S:g} s (per-tick record), got {self.duration_s}")
         if not (self.lm_cost_s > 0 and self.search_cost_s > 0 and self.sensing_latency_s >= 0):
             raise ValueError("step costs must be > 0 and the latency >= 0")
-        if round(self.control_period_s * 1e6) % TICK_US or self.control_period_s <= 0:
-            raise ValueError("control_period_s must be a positive multiple of 1 ms")
+        for name in ("control_period_s", "ur_period_s", "panda_period_s"):
+            if round(getattr(self, name) * 1e6) % TICK_US or getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be a positive multiple of 1 ms")
+        if not (self.ur_latency_s >= 0 and self.panda_latency_s >= 0 and self.max_image_rate_rad_s > 0):
+            raise ValueError("command latencies must be >= 0 and max_image_rate_rad_s > 0")
+        if self.predictor not in PREDICTORS:
+            raise ValueError(f"unknown predictor {self.predictor!r}; choose one of {PREDICTORS}")
         if self.render_arms and self.event_source != "render":
             raise ValueError(
                 f"render_arms draws the arms in the rendered event camera: it needs event_source 'render', "
@@ -127,20 +173,6 @@ class EpisodeConfig:
             raise ValueError("dropout_s must be (start, end) with start < end")
 
 
-@dataclass(frozen=True)
-class WatchdogEvent:
-    """One spell of the controller's watchdog (no fresh pose for ``stale_after_s``), in seconds.
-
-    ``last_pose_s``: time stamp of the last pose accepted before it; ``start_s``: first control cycle
-    that braked; ``zero_s``: first tick the commanded camera twist was exactly zero (None if never);
-    ``end_s``: first cycle servoing again (None if it lasted to the end)."""
-
-    start_s: float
-    last_pose_s: float
-    zero_s: float | None
-    end_s: float | None
-
-
 @dataclass
 class EpisodeResult:
     """Per-tick record of an episode (index k is simulated time ``t_s[k]``, 1 kHz) and its outcome.
@@ -148,7 +180,9 @@ class EpisodeResult:
     ``T_w_o``, ``T_w_c``: true object and camera poses. ``T_c_o_est``: the newest tracker pose
     published by ``t_s`` and ``est_t_s`` its time stamp (newest event behind it). ``v_cmd_w``: the
     controller's camera twist (world; m/s, rad/s); ``v_cam_w``: the camera's actual twist.
-    ``watchdog``: the controller was braking for lack of a fresh pose. ``ended``: ``"duration"``,
+    ``watchdog``: the controller was braking for lack of a fresh pose. ``arm_limited``: the controller's
+    command was cut to what the Panda can deliver. ``joint_speed_ratio``: the Panda's fastest joint
+    against its velocity limit (1 = at the limit). ``ended``: ``"duration"``,
     ``"tracking lost"`` or ``"arm error: …"``. ``steps``: tracker steps published, per kind.
     ``busy_s``: tracker time charged to the clock.
     """
@@ -163,13 +197,15 @@ class EpisodeResult:
     v_cmd_w: np.ndarray
     v_cam_w: np.ndarray
     watchdog: np.ndarray
+    arm_limited: np.ndarray
+    joint_speed_ratio: np.ndarray
     ended: str
     lost_at_s: float | None
     steps: dict[str, int]
     busy_s: float
     wall_s: float
     events: int
-    watchdog_events: list[WatchdogEvent] = field(default_factory=list)
+    watchdog_events: list[WatchdogSpell] = field(default_factory=list)
 
     @property
     def T_c_o_true(self) -> np.ndarray:
@@ -189,8 +225,7 @@ class ClockedTracker:
         ``cpu_s`` of this thread's CPU time (ingest included)."""
         self.tracker = tracker
         self.cost = cost
-        # One cycle is 1 LM + 4 search steps (edft+) or 5 steps of a single solver (n_search = 4).
-        self.cycle_len = 5
+        self.cycle_len = tracker.cycle_len
         self.free_us = 0  # when the solver can start its next step
         self._queue: deque[tuple[int, np.ndarray]] = deque()
         self._pending: deque[tuple[int, _evcore.Estimate]] = deque()
@@ -288,10 +323,14 @@ def _cost_model(config: EpisodeConfig) -> Callable[[str, float], float]:
 
 
 def run_episode(
-    config: EpisodeConfig, scene: DualArmScene | None = None, progress: Callable[[int], None] | None = None
+    config: EpisodeConfig,
+    scene: DualArmScene | None = None,
+    progress: Callable[[int], None] | None = None,
+    viewer: Any = None,
 ) -> EpisodeResult:
     """Run one closed-loop episode; ``progress`` is called with the number of simulated
-    milliseconds done since its previous call. ``scene`` may be reused across episodes (it is reset)."""
+    milliseconds done since its previous call. ``scene`` may be reused across episodes (it is reset).
+    ``viewer`` (a :class:`~evservo.viewer.RerunViewer`) is shown every tick; the caller closes it."""
     cfg = config
     wall0 = time.perf_counter()
     scene = scene or DualArmScene()
@@ -303,19 +342,32 @@ def run_episode(
     source = _primed_source(cfg, camera, T_c_o0, core, arms)
     tracker = ClockedTracker(core, _cost_model(cfg))
     traj = trajectories.make_trajectory(cfg.trajectory, speed_mps=cfg.speed_mps, rot_rate_dps=cfg.rot_rate_dps)
+    ur = DelayedArm(scene.ur, cfg.ur_latency_s)
+    panda = DelayedArm(scene.panda, cfg.panda_latency_s)
     follower = PoseFollower(
-        scene.ur,
+        ur,
         lambda t: trajectories.apply(traj(np.array([ramped_time(t, cfg.ramp_s)])), T_w_o0)[0],
         T_e_x=scene.config.T_e_o,
-        period_s=UR_PERIOD_US * 1e-6,
+        period_s=cfg.ur_period_s,
     )
-    pbvs = Pbvs(k=cfg.stiffness, feedforward=cfg.feedforward, period_s=cfg.control_period_s)
+    pbvs = Pbvs(
+        k=cfg.stiffness,
+        feedforward=cfg.feedforward,
+        period_s=cfg.control_period_s,
+        max_image_rate_rad_s=cfg.max_image_rate_rad_s,
+        reach=ReachableTwist(scene.panda) if cfg.feedforward else None,
+        limits=PANDA_CARTESIAN if cfg.feedforward else None,
+        lookahead_s=cfg.panda_latency_s,
+        predict_accel=cfg.predictor == "acceleration",
+    )
     # The paper captures the tracker's pose at servo start as the desired pose.
     T_c_o_des = tracker.latest(0).T_c_o
     pbvs.start(scene.T_w_c(), T_c_o_des, t_s=0.0)
 
     n = round(cfg.duration_s * 1e6) // TICK_US
     ctrl_every = round(cfg.control_period_s * 1e6) // TICK_US
+    ur_every = round(cfg.ur_period_s * 1e6) // TICK_US
+    panda_every = round(cfg.panda_period_s * 1e6) // TICK_US
     latency_us = round(cfg.sensing_latency_s * 1e6)
     drop = None if cfg.dropout_s is None else (round(cfg.dropout_s[0] * 1e6), round(cfg.dropout_s[1] * 1e6))
     lost_rot = np.deg2rad(cfg.lost_rot_deg)
@@ -327,60 +379,74 @@ def run_episode(
         "v_cmd_w": np.empty((n, 6)),
         "v_cam_w": np.empty((n, 6)),
         "watchdog": np.zeros(n, bool),
+        "arm_limited": np.zeros(n, bool),
+        "joint_speed_ratio": np.zeros(n),
     }
     T_c_o_true = [T_c_o0]  # per tick, to score an estimate against the truth at its own time
-    v_cmd, watchdog = np.zeros(6), False
+    v_cmd, watchdog, arm_limited = np.zeros(6), False, False
     last_seq, ended, lost_at, n_events, done = 0, "duration", None, 0, 0
-    for k in range(n):
-        t_us = k * TICK_US
-        t = t_us * 1e-6
-        try:
-            if t_us % UR_PERIOD_US == 0:
-                follower.command(t)
-            T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
-            v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
-            est = tracker.latest(t_us)
-            if k % ctrl_every == 0:
-                # A pose counts once, and not at all when the tracker flags itself lost.
-                fresh = est.seq != last_seq and not est.lost
-                last_seq = est.seq
-                cmd = pbvs.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6)
-                v_cmd, watchdog = cmd.v_c_w, cmd.watchdog
-            if watchdog and not np.any(v_cmd):
-                scene.panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
-            else:
-                scene.panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), TICK_US * 1e-6)
-        except RuntimeError as err:  # an infeasible IK QP: report it, do not crash the run
-            ended = f"arm error: {err}"
-            break
-        T_est = est.T_c_o
-        j = min(round(est.t_us / TICK_US), k)
-        if geometry.translation_error_m(T_est, T_c_o_true[j]) > cfg.lost_pos_m or (
-            geometry.rotation_error_rad(T_est, T_c_o_true[j]) > lost_rot
-        ):
-            ended, lost_at = "tracking lost", t
-            break
-        rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = scene.T_w_o(), T_w_c, T_est
-        rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
-        rec["watchdog"][k] = watchdog
-        done = k + 1
+    with StopOnInterrupt() as stop:
+        for k in range(n):
+            if stop.requested:  # Ctrl-C: the ticks done so far make a partial result
+                ended = INTERRUPTED
+                break
+            t_us = k * TICK_US
+            t = t_us * 1e-6
+            try:
+                ur.deliver(t_us)
+                panda.deliver(t_us)
+                if k % ur_every == 0:
+                    follower.command(t)
+                T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
+                v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
+                est = tracker.latest(t_us)
+                if k % ctrl_every == 0:
+                    # A pose counts once, and not at all when the tracker flags itself lost.
+                    fresh = est.seq != last_seq and not est.lost
+                    last_seq = est.seq
+                    cmd = pbvs.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6)
+                    v_cmd, watchdog, arm_limited = cmd.v_c_w, cmd.watchdog, cmd.arm_limited
+                if k % panda_every == 0:
+                    if watchdog and not np.any(v_cmd):
+                        panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
+                    else:
+                        panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), cfg.panda_period_s)
+            except RuntimeError as err:  # an infeasible IK QP: report it, do not crash the run
+                ended = f"arm error: {err}"
+                break
+            T_est = est.T_c_o
+            j = min(round(est.t_us / TICK_US), k)
+            if geometry.translation_error_m(T_est, T_c_o_true[j]) > cfg.lost_pos_m or (
+                geometry.rotation_error_rad(T_est, T_c_o_true[j]) > lost_rot
+            ):
+                ended, lost_at = "tracking lost", t
+                break
+            rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = scene.T_w_o(), T_w_c, T_est
+            rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
+            rec["watchdog"][k], rec["arm_limited"][k] = watchdog, arm_limited
+            rec["joint_speed_ratio"][k] = np.max(np.abs(scene.panda.qd) / scene.panda.limits.qd_max)
+            done = k + 1
 
-        scene.step(1)
-        t_next = t_us + TICK_US
-        T_now = scene.T_c_o()
-        T_c_o_true.append(T_now)
-        if arms is None:
-            events = source.events_until(t_next, T_now, scene.T_w_c())
-        else:
-            T_w_c = scene.T_w_c()
-            events = source.events_until(t_next, T_now, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
-        if drop is not None and len(events):
-            events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
-        n_events += len(events)
-        tracker.deliver(t_next + latency_us, events)
-        tracker.advance(t_next)
-        if progress is not None and (k + 1) % 100 == 0:
-            progress(100)
+            scene.step(1)
+            t_next = t_us + TICK_US
+            T_now = scene.T_c_o()
+            T_c_o_true.append(T_now)
+            if arms is None:
+                events = source.events_until(t_next, T_now, scene.T_w_c())
+            else:
+                T_w_c = scene.T_w_c()
+                events = source.events_until(t_next, T_now, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
+            if drop is not None and len(events):
+                events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
+            n_events += len(events)
+            if viewer is not None:
+                # The tick's poses (before the step), with the events simulated over it.
+                T_w_c_k, T_w_o_k = rec["T_w_c"][k], rec["T_w_o"][k]
+                viewer.servo(t_us, events, est, core, T_w_c=T_w_c_k, T_c_o_des=T_c_o_des, T_w_o_true=T_w_o_k)
+            tracker.deliver(t_next + latency_us, events)
+            tracker.advance(t_next)
+            if progress is not None and (k + 1) % 100 == 0:
+                progress(100)
     if progress is not None and done % 100:
         progress(done % 100)
 
@@ -396,73 +462,57 @@ def run_episode(
         wall_s=time.perf_counter() - wall0,
         events=n_events,
     )
-    result.watchdog_events = watchdog_events(result)
+    result.watchdog_events = spells_from_flags(result.t_s, result.watchdog, result.est_t_s, result.v_cmd_w)
     return result
 
 
-def watchdog_events(result: EpisodeResult) -> list[WatchdogEvent]:
-    """The watchdog's spells from the per-tick record."""
-    w, t = result.watchdog, result.t_s
-    out = []
-    starts = np.flatnonzero(w & ~np.concatenate([[False], w[:-1]]))
-    for s in starts:
-        after = np.flatnonzero(~w[s:])
-        e = s + after[0] if len(after) else None
-        span = slice(s, e)
-        zero = np.flatnonzero(~np.any(result.v_cmd_w[span], axis=1))
-        out.append(
-            WatchdogEvent(
-                start_s=float(t[s]),
-                last_pose_s=float(result.est_t_s[s]),
-                zero_s=float(t[s + zero[0]]) if len(zero) else None,
-                end_s=float(t[e]) if e is not None else None,
-            )
-        )
-    return out
+def timing(result: EpisodeResult) -> dict:
+    """The loop's timing (ms, Hz): what the episode simulated, and the tracker's measured share."""
+    cfg, r = result.config, result
+    n_steps = sum(r.steps.values())
+    return {
+        "sensing_latency_ms": cfg.sensing_latency_s * 1e3,
+        "tracker_step_mean_ms": r.busy_s / n_steps * 1e3 if n_steps else float("nan"),
+        "pose_age_mean_ms": float(np.mean(r.t_s - r.est_t_s) * 1e3) if len(r.t_s) else float("nan"),
+        "control_period_ms": cfg.control_period_s * 1e3,
+        "ur_rate_hz": 1.0 / cfg.ur_period_s,
+        "ur_latency_ms": cfg.ur_latency_s * 1e3,
+        "panda_rate_hz": 1.0 / cfg.panda_period_s,
+        "panda_latency_ms": cfg.panda_latency_s * 1e3,
+    }
 
 
-def pose_errors(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Translation distance (m) and geodesic angle (rad) between pose stacks ``A`` and ``B`` (N, 4, 4)."""
-    pos = np.linalg.norm(A[:, :3, 3] - B[:, :3, 3], axis=1)
-    tr = np.einsum("nji,nji->n", A[:, :3, :3], B[:, :3, :3])  # trace(Aᵀ B)
-    return pos, np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+def gave_out(result: EpisodeResult, window_s: float = 0.5) -> str | None:
+    """Why an episode ended early: ``"tracker"`` when, in the ``window_s`` before, the watchdog braked
+    for want of fresh poses; else ``"arm"`` when the Panda was at a joint velocity limit, or the
+    controller's command was at its Cartesian velocity limit or cut to what the arm could deliver
+    most of the time; else ``"tracker"``; the end reason when it was not tracking loss; None when it
+    ran its course."""
+    r = result
+    if r.ended == "duration":
+        return None
+    if r.ended != "tracking lost":
+        return r.ended
+    recent = r.t_s >= r.t_s[-1] - window_s if len(r.t_s) else np.zeros(0, bool)
+    L = PANDA_CARTESIAN if r.config.feedforward else CartesianLimits()
+    v = r.v_cmd_w[recent]
+    at_cartesian = np.any(np.linalg.norm(v[:, :3], axis=1) >= 0.999 * L.max_lin_vel) or np.any(
+        np.linalg.norm(v[:, 3:], axis=1) >= 0.999 * L.max_ang_vel
+    )
+    if np.any(r.watchdog[recent]):
+        return "tracker"
+    at_limit = np.any(r.joint_speed_ratio[recent] > 0.99) or np.mean(r.arm_limited[recent]) > 0.5 or at_cartesian
+    return "arm" if at_limit else "tracker"
 
 
-def camera_rotation_rad(T_w_c: np.ndarray) -> np.ndarray:
-    """Geodesic angle (rad) of each camera orientation in ``T_w_c`` (N, 4, 4) from the first one."""
-    if not len(T_w_c):
-        return np.zeros(0)
-    tr = np.einsum("ji,nji->n", T_w_c[0, :3, :3], T_w_c[:, :3, :3])
-    return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
-
-
-def estimate_lag_s(t_s: np.ndarray, d_lead: np.ndarray, d_follow: np.ndarray, max_lag_s: float = 1.0) -> float:
-    """How far ``d_follow`` (N, 3) trails ``d_lead`` (N, 3), both sampled at uniform times ``t_s``:
-    the shift maximising their normalised cross-correlation (summed over the axes, means removed),
-    searched in ``[−max_lag_s/2, max_lag_s]`` and refined by a parabola through the peak. NaN if
-    either signal is flat."""
-    dt = float(t_s[1] - t_s[0])
-    a = d_lead - d_lead.mean(axis=0)
-    b = d_follow - d_follow.mean(axis=0)
-    if np.sum(a * a) < 1e-12 or np.sum(b * b) < 1e-12:
-        return float("nan")
-    max_k = min(round(max_lag_s / dt), len(a) // 2)
-    lags = np.arange(-max_k // 2, max_k + 1)
-    c = np.empty(len(lags))
-    for i, L in enumerate(lags):
-        x, y = (a[: len(a) - L], b[L:]) if L >= 0 else (a[-L:], b[: len(b) + L])
-        c[i] = np.sum(x * y) / np.sqrt(np.sum(x * x) * np.sum(y * y))
-    i = int(np.argmax(c))
-    shift = 0.0
-    if 0 < i < len(c) - 1:
-        den = c[i - 1] - 2 * c[i] + c[i + 1]
-        shift = 0.5 * (c[i - 1] - c[i + 1]) / den if den < 0 else 0.0
-    return float((lags[i] + shift) * dt)
-
-
-def rms(x: np.ndarray) -> float:
-    """Root mean square of ``x``; NaN when empty."""
-    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
+def overshoot_m(d_lead: np.ndarray, d_follow: np.ndarray) -> float:
+    """How far ``d_follow`` (N, 3) travels past the extremes of ``d_lead`` (N, 3) along the leader's main
+    direction of motion (metres, ≥ 0): a camera overshooting where its target stopped or turned back."""
+    if len(d_lead) < 2 or not np.any(d_lead):
+        return 0.0
+    axis = np.linalg.svd(d_lead - d_lead.mean(axis=0), full_matrices=False)[2][0]
+    a, b = d_lead @ axis, d_follow @ axis
+    return float(max(0.0, b.max() - a.max(), a.min() - b.min()))
 
 
 def summarize(result: EpisodeResult) -> dict:
@@ -478,13 +528,14 @@ def summarize(result: EpisodeResult) -> dict:
     # The truth at each estimate's own time stamp (nearest tick).
     idx = np.clip(np.round(r.est_t_s / (TICK_US * 1e-6)).astype(int), 0, max(n - 1, 0))
     k_pos, k_rot = pose_errors(r.T_c_o_est, truth[idx])
-    cam_rot = camera_rotation_rad(r.T_w_c)
+    cam_rot = rotation_from_first_rad(r.T_w_c)
     d_obj = r.T_w_o[:, :3, 3] - r.T_w_o[:1, :3, 3]
     d_cam = r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3]
     sim_s = n * TICK_US * 1e-6
     n_steps = sum(r.steps.values())
     return {
         "completed": r.ended == "duration",
+        "interrupted": r.ended == INTERRUPTED,
         "ended": r.ended,
         "lost_at_s": r.lost_at_s,
         "simulated_s": sim_s,
@@ -495,6 +546,7 @@ def summarize(result: EpisodeResult) -> dict:
         "gt_track_pos_rms_mm": rms(k_pos) * 1e3,
         "gt_track_rot_rms_deg": float(np.rad2deg(rms(k_rot))),
         "lag_s": estimate_lag_s(r.t_s, d_obj, d_cam) if n > 100 else float("nan"),
+        "overshoot_mm": overshoot_m(d_obj, d_cam) * 1e3,
         "camera_rot_mean_deg": float(np.rad2deg(np.mean(cam_rot))) if n else float("nan"),
         "object_travel_max_m": float(np.max(np.linalg.norm(d_obj, axis=1))) if n else 0.0,
         "tracker_rate_hz": n_steps / sim_s if sim_s else 0.0,
@@ -503,6 +555,10 @@ def summarize(result: EpisodeResult) -> dict:
         "pose_age_mean_ms": float(np.mean(r.t_s - r.est_t_s) * 1e3) if n else float("nan"),
         "events": r.events,
         "watchdog": [asdict(w) for w in r.watchdog_events],
+        "arm_limited_fraction": float(np.mean(r.arm_limited)) if n else 0.0,
+        "joint_speed_max_ratio": float(np.max(r.joint_speed_ratio)) if n else 0.0,
+        "gave_out": gave_out(r),
+        "timing": timing(r),
         "wall_s": r.wall_s,
         "config": asdict(cfg),
         "versions": {"evservo": _evcore.__version__},
@@ -510,86 +566,37 @@ def summarize(result: EpisodeResult) -> dict:
 
 
 def write_outputs(result: EpisodeResult, out_dir: str | Path, summary: dict | None = None) -> dict[str, Path]:
-    """Write ``summary.json``, ``log.csv`` (at ``config.log_rate_hz``) and ``motion.png`` into
-    ``out_dir``; returns their paths by name."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    """Write ``summary.json``, ``log.csv`` (at ``config.log_rate_hz``) and ``motion.png`` (the paper's
+    Fig. 5) into ``out_dir``; returns their paths by name. The summary is written last (and
+    atomically): a ``summary.json`` is there only when the episode's other outputs are."""
+    r, cfg = result, result.config
+    out = make_out_dir(out_dir, stale=OUTPUTS)
     paths = {"summary": out / "summary.json", "log": out / "log.csv", "motion": out / "motion.png"}
     summary = summary if summary is not None else summarize(result)
-    paths["summary"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
-    _write_log(result, paths["log"])
-    plot_motion(result, paths["motion"])
-    return paths
-
-
-def _write_log(r: EpisodeResult, path: Path) -> None:
-    n = len(r.t_s)
-    every = max(1, round(1.0 / (r.config.log_rate_hz * TICK_US * 1e-6)))
-    k = np.arange(0, n, every)
+    every = max(1, round(1.0 / (cfg.log_rate_hz * TICK_US * 1e-6)))
+    k = np.arange(0, len(r.t_s), every)
     truth = r.T_c_o_true[k]
-    s_pos, s_rot = pose_errors(r.T_c_o_est[k], np.broadcast_to(r.T_c_o_des, (len(k), 4, 4)))
-    g_pos, _ = pose_errors(truth, np.broadcast_to(r.T_c_o_des, (len(k), 4, 4)))
+    des = np.broadcast_to(r.T_c_o_des, (len(k), 4, 4))
+    s_pos, s_rot = pose_errors(r.T_c_o_est[k], des)
+    g_pos, _ = pose_errors(truth, des)
     header = [
         "t_s", "obj_x_m", "obj_y_m", "obj_z_m", "cam_x_m", "cam_y_m", "cam_z_m",
         "est_x_m", "est_y_m", "est_z_m", "true_x_m", "true_y_m", "true_z_m",
         "servo_pos_mm", "servo_rot_deg", "gt_servo_pos_mm", "pose_age_ms",
         "v_cmd_mps", "w_cmd_dps", "v_cam_mps", "watchdog",
     ]  # fmt: skip
-    cols = np.column_stack(
-        [
-            r.t_s[k],
-            r.T_w_o[k, :3, 3],
-            r.T_w_c[k, :3, 3],
-            r.T_c_o_est[k, :3, 3],
-            truth[:, :3, 3],
-            s_pos * 1e3,
-            np.rad2deg(s_rot),
-            g_pos * 1e3,
-            (r.t_s[k] - r.est_t_s[k]) * 1e3,
-            np.linalg.norm(r.v_cmd_w[k, :3], axis=1),
-            np.rad2deg(np.linalg.norm(r.v_cmd_w[k, 3:], axis=1)),
-            np.linalg.norm(r.v_cam_w[k, :3], axis=1),
-            r.watchdog[k].astype(float),
-        ]
+    cols = np.column_stack([
+        r.t_s[k], r.T_w_o[k, :3, 3], r.T_w_c[k, :3, 3], r.T_c_o_est[k, :3, 3], truth[:, :3, 3], s_pos * 1e3,
+        np.rad2deg(s_rot), g_pos * 1e3, (r.t_s[k] - r.est_t_s[k]) * 1e3, np.linalg.norm(r.v_cmd_w[k, :3], axis=1),
+        np.rad2deg(np.linalg.norm(r.v_cmd_w[k, 3:], axis=1)), np.linalg.norm(r.v_cam_w[k, :3], axis=1),
+        r.watchdog[k].astype(float),
+    ])  # fmt: skip
+    write_log(paths["log"], header, cols)
+    title = f"{cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s" + (
+        f", feed-forward ({cfg.predictor})" if cfg.feedforward else ", paper's law"
     )
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows([[f"{v:.6g}" for v in row] for row in cols])
-
-
-def plot_motion(r: EpisodeResult, path: str | Path) -> None:
-    """The paper's Fig. 5: camera and object displacement along each world axis from their start
-    poses (mm), the object also as reconstructed from the camera pose and the estimate (what the
-    paper could plot), and the camera's rotation in the world from its start orientation (deg)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = r.t_s
-    d_obj = (r.T_w_o[:, :3, 3] - r.T_w_o[:1, :3, 3]) * 1e3
-    d_cam = (r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3]) * 1e3
-    recon = r.T_w_c @ r.T_c_o_est
-    d_rec = (recon[:, :3, 3] - recon[:1, :3, 3]) * 1e3
-    cam_rot = np.rad2deg(camera_rotation_rad(r.T_w_c))
-    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(8, 8), constrained_layout=True)
-    for i, name in enumerate("xyz"):
-        ax = axes[i]
-        ax.plot(t, d_cam[:, i], color="tab:blue", label="camera")
-        ax.plot(t, d_obj[:, i], color="tab:orange", label="object (true)")
-        ax.plot(t, d_rec[:, i], color="tab:orange", ls=":", lw=1, label="object (camera · estimate)")
-        ax.set_ylabel(f"{name} (mm)")
-        ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[3].plot(t, cam_rot, color="tab:blue")
-    axes[3].set_ylabel("camera rot. (deg)")
-    axes[3].set_xlabel("time since servo start (s)")
-    axes[3].grid(alpha=0.3)
-    cfg = r.config
-    fig.suptitle(
-        f"{cfg.object}, {cfg.tracker}, Z = {cfg.distance_m} m, {cfg.trajectory} at {cfg.speed_mps} m/s"
-        + (", feed-forward" if cfg.feedforward else "")
+    plot_motion(
+        paths["motion"], r.t_s, r.T_w_c, r.T_w_c @ r.T_c_o_est, title, T_w_o_true=r.T_w_o, spells=r.watchdog_events
     )
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    write_summary(paths["summary"], summary)
+    return paths

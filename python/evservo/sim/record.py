@@ -23,8 +23,9 @@ HDF5 layout (everything a reader needs; :func:`load_recording` reads it back):
 root attributes
     ``evservo_recording`` = 1, ``object`` (built-in name or mesh path), ``trajectory``, ``speed_mps``,
     ``rot_rate_dps``, ``distance_m``, ``duration_s``, ``seed``, ``preset``, ``background_behind_m``,
-    ``cell_m``, ``gt_rate_hz``, ``max_px``, ``T_c_bg`` (4×4), ``evservo_version``, and the statistics
-    ``n_renders`` and ``compute_s`` (wall time of the simulation).
+    ``cell_m``, ``gt_rate_hz``, ``max_px``, ``T_c_bg`` (4×4), ``evservo_version``, the statistics
+    ``n_renders`` and ``compute_s`` (wall time of the simulation), and ``evservo_complete``: 0 while
+    the file is written, set to 1 as the last write (readers refuse a file where it is 0).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from evservo import _evcore, geometry, trajectories
 from evservo import io as evio
 from evservo.io import EVENT_CD
 from evservo.models import load_object, to_core_mesh
+from evservo.outputs import atomic_path, check_out_file
 
 #: Start rotation of the object (rotation vector, radians): facing the camera, turned ~33° so that
 #: three faces show.
@@ -78,6 +80,13 @@ class RecordConfig:
                 raise ValueError(f"{name} must be finite and > 0, got {v}")
         if not (np.isfinite(self.speed_mps) and self.speed_mps >= 0):
             raise ValueError(f"speed must be finite and >= 0 m/s, got {self.speed_mps}")
+        if not (np.isfinite(self.rot_rate_dps) and self.rot_rate_dps >= 0):
+            raise ValueError(f"rotation rate must be finite and >= 0 deg/s, got {self.rot_rate_dps}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        trajectories.make_trajectory(self.trajectory, speed_mps=self.speed_mps, rot_rate_dps=self.rot_rate_dps)
+        if self.duration_s > 3600:
+            raise ValueError(f"duration must be at most 3600 s (ground truth is held at 1 kHz), got {self.duration_s}")
         if self.gt_rate_hz < 1000:
             raise ValueError(f"ground truth needs >= 1000 Hz, got {self.gt_rate_hz}")
 
@@ -158,8 +167,7 @@ def record(out: str | Path, config: RecordConfig, camera: _evcore.Camera | None 
     out = Path(out)
     if out.suffix.lower() not in (".h5", ".hdf5"):
         raise ValueError(f"recordings are HDF5 files (.h5/.hdf5), got {out.name}")
-    if not out.parent.is_dir():
-        raise FileNotFoundError(f"output directory does not exist: {out.parent}")
+    check_out_file(out, (".h5", ".hdf5"))
     cam = scaled_camera(camera or _evcore.Camera.imx636(), config.scale)
     mesh = to_core_mesh(load_object(config.object))
     traj = trajectories.make_trajectory(config.trajectory, speed_mps=config.speed_mps, rot_rate_dps=config.rot_rate_dps)
@@ -176,7 +184,11 @@ def record(out: str | Path, config: RecordConfig, camera: _evcore.Camera | None 
     sim = _evcore.SimCamera(cam, mesh, preset=config.preset, seed=config.seed, T_c_bg=T_c_bg, cell_m=config.cell_m)
     started = time.perf_counter()
     n_renders = 1
-    with h5py.File(out, "w") as f:
+    # Written under a temporary name and renamed when complete: an interrupted run leaves neither a
+    # half-written recording nor a damaged previous one at ``out``.
+    with atomic_path(out) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["evservo_recording"] = 1
+        f.attrs[evio.RECORDING_COMPLETE_ATTR] = 0
         writer = _EventWriter(f, cam.width, cam.height)
         sim.advance(gt_T[0], int(gt_t[0]))
         bar = tqdm(total=len(gt_t) - 1, unit="ms", desc="simulating", disable=not progress or len(gt_t) < 200)
@@ -198,7 +210,6 @@ def record(out: str | Path, config: RecordConfig, camera: _evcore.Camera | None 
         for name in ("width", "height", "fx", "fy", "cx", "cy"):
             c.attrs[name] = getattr(cam, name)
         c.attrs["dist"] = np.array(cam.dist, float)
-        f.attrs["evservo_recording"] = 1
         f.attrs["evservo_version"] = evservo.__version__
         for key, value in asdict(config).items():
             f.attrs[key] = value
@@ -206,6 +217,7 @@ def record(out: str | Path, config: RecordConfig, camera: _evcore.Camera | None 
         f.attrs["n_renders"] = n_renders
         f.attrs["compute_s"] = compute_s
         n_events = writer.n
+        f.attrs[evio.RECORDING_COMPLETE_ATTR] = 1  # last: everything above is in the file
     return dict(
         n_events=n_events, n_renders=n_renders, compute_s=compute_s,
         realtime_factor=config.duration_s / compute_s, events_per_s=n_events / config.duration_s,
@@ -261,6 +273,7 @@ def load_recording(path: str | Path) -> Recording:
         with h5py.File(p, "r") as f:
             if not f.attrs.get("evservo_recording", 0):
                 raise ValueError(f"{p} is not an evservo recording (no evservo_recording attribute)")
+            evio.check_complete_recording(p, f)
             c = f["camera"].attrs
             cam = _evcore.Camera(
                 int(c["width"]), int(c["height"]), float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]),

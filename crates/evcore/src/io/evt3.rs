@@ -27,9 +27,9 @@ const VECT_8: u16 = 0x5;
 const TIME_LOW: u16 = 0x6;
 const TIME_HIGH: u16 = 0x8;
 /// The 24-bit time counter wraps after 2^24 µs (16.777216 s).
-const PERIOD_US: i64 = 1 << 24;
+pub(super) const PERIOD_US: i64 = 1 << 24;
 /// OpenEB's tolerance: a drop within ten TIME_HIGH steps of a full period is still a wrap.
-const WRAP_GUARD_US: i64 = (10 << 12) + (1 << 12);
+pub(super) const WRAP_GUARD_US: i64 = (10 << 12) + (1 << 12);
 /// Words decoded per block (2048 words): bounds the capacity reserved ahead of each block.
 const BLOCK_BYTES: usize = 4 * 1024;
 

@@ -1,4 +1,5 @@
-//! Prophesee RAW event files: header parsing, streaming EVT 2.0 / EVT 3.0 decoders, a file reader.
+//! Prophesee RAW event files: header parsing, streaming EVT 2.0 / EVT 3.0 decoders, a file reader,
+//! and an EVT 3.0 encoder (for event packets written to ROS bags).
 //!
 //! The decoders are pure state machines over little-endian bytes. They accept any chunking of
 //! the stream (a partial word is kept between calls), so they work the same on a file read in
@@ -17,11 +18,13 @@
 
 mod evt2;
 mod evt3;
+mod evt3_encode;
 mod header;
 mod raw;
 
 pub use evt2::{Evt2Decoder, Evt2Words};
 pub use evt3::{Evt3Decoder, Evt3Words};
+pub use evt3_encode::{encode_evt3, Evt3Encoder, MAX_WRAPS_PER_GAP};
 pub use header::{Format, RawHeader};
 pub use raw::RawReader;
 

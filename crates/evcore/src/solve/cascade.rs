@@ -14,15 +14,22 @@ pub enum SolverMode {
 }
 
 impl SolverMode {
+    /// Every mode, in the order of [`SolverMode::NAMES`].
+    pub const ALL: [Self; 3] = [Self::EdftPlus, Self::Edopts, Self::Edft];
+    /// The accepted names, one per mode: the only spellings [`SolverMode::parse`] takes (the
+    /// bindings hand this list to Python for its command-line choices).
+    pub const NAMES: [&'static str; 3] = ["edft+", "edopts", "edft"];
+
     pub fn parse(name: &str) -> Result<Self> {
-        match name.to_ascii_lowercase().as_str() {
-            "edft+" | "edftplus" | "edft-plus" => Ok(Self::EdftPlus),
-            "edopts" | "edopt" => Ok(Self::Edopts),
-            "edft" => Ok(Self::Edft),
-            other => Err(Error::InvalidArgument(format!(
-                "unknown solver {other:?}; choose edft+, edopts or edft"
-            ))),
-        }
+        Self::ALL
+            .into_iter()
+            .find(|m| m.name() == name)
+            .ok_or_else(|| {
+                Error::InvalidArgument(format!(
+                    "unknown solver {name:?}; choose one of {}",
+                    Self::NAMES.join(", ")
+                ))
+            })
     }
 
     pub fn name(self) -> &'static str {
@@ -105,6 +112,13 @@ mod tests {
         let mut e = Schedule::new(SolverMode::Edopts, 4).unwrap();
         assert!((0..5).all(|_| e.next_step() == Search));
         assert!(Schedule::new(SolverMode::EdftPlus, 0).is_err());
-        assert!(SolverMode::parse("EDFT+").is_ok() && SolverMode::parse("icp").is_err());
+        for (mode, name) in SolverMode::ALL.into_iter().zip(SolverMode::NAMES) {
+            assert_eq!(SolverMode::parse(name).unwrap(), mode);
+            assert_eq!(mode.name(), name);
+        }
+        // One spelling per solver: no case or alias variants.
+        for other in ["EDFT+", "edftplus", "edopt", "icp"] {
+            assert!(SolverMode::parse(other).is_err(), "{other}");
+        }
     }
 }

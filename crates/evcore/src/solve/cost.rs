@@ -119,17 +119,17 @@ pub fn image_jacobian(pin: &Pinhole, p: [f32; 3], pivot: [f32; 3]) -> [[f32; 6];
     [row(au), row(av)]
 }
 
-/// Eq. (1) at `pose`: the sum of the map over the projected points. Unprojectable points cost the
-/// truncation value, so the cost never rewards pushing points out of view.
+/// One model point's term of Eq. (1) at `pose`: the map at its projection. An unprojectable point
+/// costs the truncation value, so the cost never rewards pushing points out of view.
+#[inline]
+pub fn point_cost(map: &impl CostMap, pin: &Pinhole, pose: &Rigid32, x: [f32; 3]) -> f32 {
+    pin.project(pose.apply(x))
+        .map_or_else(|| map.max_value(), |(u, v)| map.sample(u, v))
+}
+
+/// Eq. (1) at `pose`: the sum of [`point_cost`] over the points.
 pub fn total_cost(map: &impl CostMap, pin: &Pinhole, pose: &Rigid32, points: &[[f32; 3]]) -> f32 {
-    let far = map.max_value();
-    points
-        .iter()
-        .map(|&x| match pin.project(pose.apply(x)) {
-            Some((u, v)) => map.sample(u, v),
-            None => far,
-        })
-        .sum()
+    points.iter().map(|&x| point_cost(map, pin, pose, x)).sum()
 }
 
 /// Quality of an alignment: mean cost per point (pixels) and the fraction of points within
@@ -153,12 +153,9 @@ pub fn cost_stats(
             inlier_fraction: 0.0,
         };
     }
-    let far = map.max_value();
     let (mut sum, mut inliers) = (0.0f32, 0usize);
     for &x in points {
-        let c = pin
-            .project(pose.apply(x))
-            .map_or(far, |(u, v)| map.sample(u, v));
+        let c = point_cost(map, pin, pose, x);
         sum += c;
         inliers += usize::from(c <= inlier_px);
     }

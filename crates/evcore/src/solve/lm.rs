@@ -7,7 +7,7 @@
 //! outliers. Damping follows ViSP's rule: μ ÷ 10 after an accepted step, × 10 and retry after a
 //! rejected one, give up above `mu_max`.
 
-use super::cost::{CostMap, Pinhole, Rigid32};
+use super::cost::{point_cost, CostMap, Pinhole, Rigid32};
 use crate::se3::Pose;
 use nalgebra::{Matrix6, Vector3, Vector6};
 use std::borrow::Cow;
@@ -62,15 +62,9 @@ fn huber(r: f32, k: f32) -> (f32, f32) {
 
 fn robust_cost(map: &impl CostMap, pin: &Pinhole, pose: &Pose, points: &[[f32; 3]], k: f32) -> f64 {
     let rig = Rigid32::from_pose(pose);
-    let far = map.max_value();
     points
         .iter()
-        .map(|&x| {
-            let r = pin
-                .project(rig.apply(x))
-                .map_or(far, |(u, v)| map.sample(u, v));
-            f64::from(huber(r, k).0)
-        })
+        .map(|&x| f64::from(huber(point_cost(map, pin, &rig, x), k).0))
         .sum()
 }
 

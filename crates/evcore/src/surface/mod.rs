@@ -58,17 +58,22 @@ impl FrontEnd {
         }
     }
 
+    /// The accepted names, the only spellings [`FrontEnd::parse`] takes (the bindings hand this
+    /// list to Python for its command-line choices).
+    pub const NAMES: [&'static str; 3] = ["scarf", "fixed-count", "eros"];
+
     /// "scarf" (block 14, alpha 1), "fixed-count" (8000 events) or "eros" (k 7, d 0.7 as EDOPT's main.cpp).
     pub fn parse(name: &str) -> Result<Self> {
-        match name.trim().to_ascii_lowercase().as_str() {
+        match name {
             "scarf" => Ok(Self::scarf_default()),
-            "fixed-count" | "fixed_count" => Ok(Self::FixedCount { n_events: 8000 }),
+            "fixed-count" => Ok(Self::FixedCount { n_events: 8000 }),
             "eros" => Ok(Self::Eros {
                 kernel_px: 7,
                 decay: 0.7,
             }),
             _ => Err(Error::InvalidArgument(format!(
-                "unknown front-end {name:?}; expected \"scarf\", \"fixed-count\" or \"eros\""
+                "unknown front-end {name:?}; choose one of {}",
+                Self::NAMES.join(", ")
             ))),
         }
     }
@@ -232,9 +237,16 @@ mod tests {
             }
         );
         assert_eq!(
-            FrontEnd::parse(" Fixed-Count ").unwrap(),
+            FrontEnd::parse("fixed-count").unwrap(),
             FrontEnd::FixedCount { n_events: 8000 }
         );
+        // One spelling per front-end: no case or separator variants.
+        for other in [" Fixed-Count ", "fixed_count", "SCARF"] {
+            assert!(FrontEnd::parse(other).is_err(), "{other}");
+        }
+        for name in FrontEnd::NAMES {
+            assert!(FrontEnd::parse(name).is_ok(), "{name}");
+        }
         assert_eq!(
             FrontEnd::parse("eros").unwrap(),
             FrontEnd::Eros {
