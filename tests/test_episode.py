@@ -138,7 +138,7 @@ def test_overshoot_is_travel_past_the_leaders_extremes_along_its_motion():
 
 
 def test_demo_runs_our_controller_unless_asked_for_the_paper_law_and_servo_the_reverse():
-    from evservo.cli import build_parser
+    from evservo.cli import UsageError, build_parser
     from evservo.commands.servo import config_from_args
 
     def cfg(*argv):
@@ -149,5 +149,5 @@ def test_demo_runs_our_controller_unless_asked_for_the_paper_law_and_servo_the_r
     assert not cfg("demo", "--paper-law").feedforward
     assert cfg("demo", "--duration", "3", "--predictor", "acceleration").predictor == "acceleration"
     assert not cfg("servo", "--sim").feedforward and cfg("servo", "--sim", "--feedforward").feedforward
-    with pytest.raises(SystemExit):
+    with pytest.raises(UsageError, match="--paper-law: not allowed with argument --feedforward"):
         cfg("demo", "--feedforward", "--paper-law")
