@@ -294,12 +294,13 @@ def run_real_loop(
         # Short GIL slices: the camera thread must not hold the control loop up for 5 ms at a time.
         sys.setswitchinterval(min(switch, 0.0005))
         pump.start()
-        est = _settle(tracker, pump, cfg, clock, say)
         # No cyclic garbage collection while servoing: a full collection can take longer than a period,
         # and the loop makes no reference cycles. Collected after the arm has stopped. The collection
-        # before it (up to 0.5 s on a loaded machine) comes before the servo clock starts.
+        # before it (up to 0.5 s on a loaded machine) runs while the tracker settles, so it delays
+        # neither the servo clock nor the age of the pose servoing starts from.
         gc.collect()
         gc.disable()
+        est = _settle(tracker, pump, cfg, clock, say)
         t0 = clock()
         feed = _PoseFeed(tracker, pump, t0, est)
         pbvs.start(arm.T_w_e() @ T_e_c, est.T_c_o, t_s=feed.t_s)
