@@ -242,6 +242,18 @@ pub struct FrameInfo {
     pub full_frame: bool,
 }
 
+/// What one render draws: the object at `pose` and each occluder at its pose (both camera frame).
+fn scene_of<'a>(
+    mesh: &'a Mesh,
+    pose: &'a Pose,
+    occluders: &'a [Arc<Mesh>],
+    occluder_poses: &'a [Pose],
+) -> Vec<(&'a Mesh, &'a Pose)> {
+    std::iter::once((mesh, pose))
+        .chain(occluders.iter().map(|m| m.as_ref()).zip(occluder_poses))
+        .collect()
+}
+
 /// The rendered event camera; see the module documentation.
 pub struct SimCamera {
     camera: Camera,
@@ -648,14 +660,7 @@ impl SimCamera {
         t_us: i64,
         out: &mut EventBatch,
     ) -> Result<FrameInfo> {
-        let scene: Vec<(&Mesh, &Pose)> = std::iter::once((self.mesh.as_ref(), cur))
-            .chain(
-                self.occluders
-                    .iter()
-                    .map(|m| m.as_ref())
-                    .zip(occluder_poses),
-            )
-            .collect();
+        let scene = scene_of(&self.mesh, cur, &self.occluders, occluder_poses);
         self.renderer
             .prepare_scene(&scene, &self.canvas, None, &self.opts)?;
         std::mem::swap(&mut self.cover, &mut self.cover_prev);
@@ -975,14 +980,7 @@ impl SimCamera {
         raw_roi: Roi,
         canvas_roi: Roi,
     ) -> Result<()> {
-        let scene: Vec<(&Mesh, &Pose)> = std::iter::once((self.mesh.as_ref(), t_c_o))
-            .chain(
-                self.occluders
-                    .iter()
-                    .map(|m| m.as_ref())
-                    .zip(occluder_poses),
-            )
-            .collect();
+        let scene = scene_of(&self.mesh, t_c_o, &self.occluders, occluder_poses);
         let rendered =
             self.renderer
                 .render_scene_into(&scene, &self.canvas, Some(canvas_roi), &self.opts)?;
