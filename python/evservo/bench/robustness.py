@@ -15,11 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
+from evservo import _evcore
 from evservo.sim.scenarios import ScenarioRun, run_scenario, scenarios, score
 
 SOLVERS = ("edft+", "edopts", "edft")
-#: The tracker's default ``lost_below`` (evcore's tracker.rs ``LOST_BELOW``).
-LOST_BELOW = 0.3
+#: The tracker's default ``lost_below``.
+LOST_BELOW = _evcore.LOST_BELOW
 
 
 def roc(confidence: np.ndarray, wrong: np.ndarray, threshold: float = LOST_BELOW) -> dict:
