@@ -4,7 +4,10 @@ rerun-sdk is an optional extra (``pip install 'evservo[viewer]'``, about 700 MB)
 viewer is asked for. The loops call one object, :class:`RerunViewer`, once per update
 (:meth:`RerunViewer.track` from ``evservo track``, :meth:`RerunViewer.servo` from
 ``evservo servo --sim``); it logs at most once per ``period_us`` of sensor time (30 Hz by default)
-and sums the events in between, so a 1 kHz loop is not slowed by logging.
+and sums the events in between, so a 1 kHz loop is not slowed by logging. The real loops
+(``servo --robot``, ``ros servo``) call :meth:`RerunViewer.servo` from a thread of their own
+(:class:`~evservo.runtime.live_view.LiveView`), never from the control loop; with the threaded
+tracker there the distance field is not shown (it lives inside the tracker's thread).
 
 What is logged, on the timeline ``sensor_time`` (the run's event time):
 
@@ -154,9 +157,15 @@ class RerunViewer:
         rec.log(
             "camera/events", rr.EncodedImage(contents=_event_png(events, cam.width, cam.height), media_type="image/png")
         )
-        pts = np.asarray(tracker.projected_points())
+        if getattr(tracker, "running", False):
+            # The threaded tracker keeps S* and its field inside its thread: S* is projected here
+            # at the published estimate, and the field is not shown.
+            pts = _project_in_view(cam, tracker.points_o, est.T_c_o)
+            field, (x0, y0) = np.zeros((0, 0), np.float32), (0, 0)
+        else:
+            pts = np.asarray(tracker.projected_points())
+            field, (x0, y0) = tracker.field()
         rec.log("camera/sstar", rr.Points2D(pts, colors=[255, 40, 40], radii=0.8))
-        field, (x0, y0) = tracker.field()
         field = np.asarray(field, dtype=np.float32)
         if field.size:
             rec.log("field/distance", rr.Image(field))
@@ -172,6 +181,17 @@ class RerunViewer:
         pos_m, rot_rad = pose_errors(T_a[None], T_b[None])
         self._rec.log(f"errors/{kind}_pos_mm", self._rr.Scalars(float(pos_m[0]) * 1e3))
         self._rec.log(f"errors/{kind}_rot_deg", self._rr.Scalars(float(np.rad2deg(rot_rad[0]))))
+
+
+def _project_in_view(camera: _evcore.Camera, points_o: np.ndarray, T_c_o: np.ndarray) -> np.ndarray:
+    """Model points (object frame, m) at ``T_c_o`` in rectified pixels, those in front of the camera
+    and inside the image only, (N, 2)."""
+    T = np.asarray(T_c_o, dtype=float)
+    pts_c = np.asarray(points_o, dtype=float) @ T[:3, :3].T + T[:3, 3]
+    pts_c = pts_c[pts_c[:, 2] > 1e-6]
+    px = np.asarray(camera.project(pts_c, distort=False)).reshape(-1, 2)
+    inside = (px[:, 0] >= 0) & (px[:, 0] < camera.width) & (px[:, 1] >= 0) & (px[:, 1] < camera.height)
+    return px[inside]
 
 
 def _event_png(events: np.ndarray, width: int, height: int) -> bytes:
