@@ -14,6 +14,7 @@ test ends. Skipped, with the reason, where ROS 2 support is not installed (``mak
 it: ``make test ROS=1``).
 """
 
+import contextlib
 import importlib.util
 import json
 import os
@@ -47,9 +48,10 @@ def _need_ros() -> None:
 def ros_env(tmp_path):
     """The environment of the test's ROS processes: its own domain, this machine only, over UDP (no
     shared-memory segments left behind by a killed node), logs in the test's directory."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               FASTDDS_BUILTIN_TRANSPORTS="UDPv4", ROS_LOG_DIR=str(tmp_path / "roslog"), PYTHONUNBUFFERED="1")  # fmt: skip
-    return env
+    return dict(
+        os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        FASTDDS_BUILTIN_TRANSPORTS="UDPv4", ROS_LOG_DIR=str(tmp_path / "roslog"), PYTHONUNBUFFERED="1",
+    )  # fmt: skip
 
 
 class _Procs:
@@ -99,10 +101,8 @@ class _Procs:
         pytest.fail(f"no {text!r} from {' '.join(p.args)} within {timeout_s} s:\n{out}\n{err}")
 
     def _kill(self, p: subprocess.Popen) -> None:
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.killpg(p.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
 
     def __enter__(self) -> "_Procs":
         return self

@@ -123,35 +123,51 @@ def _add_servo_parser(rs: argparse._SubParsersAction) -> None:
     s = rs.add_parser(
         "servo", help="the real loop through ROS: EventPacket in, PBVS as TwistStamped out (MoveIt Servo, ...)"
     )
-    s.add_argument("--config", required=True, metavar="RIG.yaml",
-                   help="rig config: hand-eye T_e_c, limits, workspace, intrinsics, object defaults")  # fmt: skip
+    s.add_argument(
+        "--config",
+        required=True,
+        metavar="RIG.yaml",
+        help="rig config: hand-eye T_e_c, limits, workspace, intrinsics, object defaults",
+    )
     s.add_argument("--model", help="object: built-in name or mesh path (default: the config's)")
     s.add_argument("--init-pose", metavar="x,y,z,qx,qy,qz,qw", help="object in camera at start (default: config's)")
-    s.add_argument("--desired-pose", metavar="x,y,z,qx,qy,qz,qw",
-                   help="object in camera to servo to (default: the config's, else the tracked pose at start)")  # fmt: skip
+    s.add_argument(
+        "--desired-pose",
+        metavar="x,y,z,qx,qy,qz,qw",
+        help="object in camera to servo to (default: the config's, else the tracked pose at start)",
+    )
     cam = s.add_mutually_exclusive_group()
     cam.add_argument("--camera", help="camera file (default: the config's intrinsics)")
-    cam.add_argument("--camera-from-topic", action="store_true",
-                     help="take the intrinsics from the first CameraInfo on --camera-info-topic")  # fmt: skip
+    cam.add_argument(
+        "--camera-from-topic",
+        action="store_true",
+        help="take the intrinsics from the first CameraInfo on --camera-info-topic",
+    )
     s.add_argument("--events-topic", default="/event_camera/events")
     s.add_argument("--camera-info-topic", default="/event_camera/camera_info")
-    s.add_argument("--twist-topic", default="/servo_node/delta_twist_cmds",
-                   help="TwistStamped out (default: MoveIt Servo's input)")  # fmt: skip
+    s.add_argument(
+        "--twist-topic", default="/servo_node/delta_twist_cmds", help="TwistStamped out (default: MoveIt Servo's input)"
+    )
     s.add_argument("--ee-frame", default="tool0", help="frame_id of the twists: the end effector (default tool0)")
-    s.add_argument("--ee-pose-topic",
-                   help="PoseStamped of the end effector in the robot base frame (default: integrate the twists)")  # fmt: skip
-    s.add_argument("--ee-pose-timeout", type=float,
-                   help="a pose older than this (s) is a lost link (default 0.2)")  # fmt: skip
+    s.add_argument(
+        "--ee-pose-topic",
+        help="PoseStamped of the end effector in the robot base frame (default: integrate the twists)",
+    )
+    s.add_argument("--ee-pose-timeout", type=float, help="a pose older than this (s) is a lost link (default 0.2)")
     s.add_argument("--tracker", default="edft+", help="edft+, edopts or edft")
     s.add_argument("--duration", type=float, default=real["duration_s"], help="servoing time, s")
     s.add_argument("--feedforward", action="store_true", help="feed the target's estimated motion forward")
     s.add_argument("--settle", type=float, help=f"tracking before the arm moves, s (default {real['settle_s']})")
     s.add_argument("--stiffness", type=float, help=f"k of Eq. 6, 1/s² (default {real['stiffness']})")
     s.add_argument("--rate", type=float, help=f"control rate, Hz (default {real['rate_hz']})")
-    s.add_argument("--stale-after", type=float,
-                   help=f"watchdog: stop when no fresh pose for this long, s (default {real['stale_after_s']})")  # fmt: skip
-    s.add_argument("--start-timeout", type=float,
-                   help=f"longest wait for the first events, s (default {real['start_timeout_s']})")  # fmt: skip
+    s.add_argument(
+        "--stale-after",
+        type=float,
+        help=f"watchdog: stop when no fresh pose for this long, s (default {real['stale_after_s']})",
+    )
+    s.add_argument(
+        "--start-timeout", type=float, help=f"longest wait for the first events, s (default {real['start_timeout_s']})"
+    )
     s.add_argument("--dry-run", action="store_true", help="run everything but publish no twist (commands logged)")
     s.add_argument("--out", help="output directory (summary.json, log.csv, motion.png; default runs/ros-servo)")
     add_viewer_arguments(s)

@@ -21,6 +21,7 @@ and the publisher waits, boundedly, for that last twist to be acknowledged befor
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 import time
@@ -58,10 +59,8 @@ class RosNode:
     def _spin(self) -> None:
         from rclpy.executors import ExternalShutdownException
 
-        try:
+        with contextlib.suppress(ExternalShutdownException):
             self._executor.spin()
-        except ExternalShutdownException:
-            pass
 
     def close(self) -> None:
         self._executor.shutdown(timeout_sec=1.0)
@@ -125,7 +124,9 @@ def wait_camera_info(node: Any, topic: str, timeout_s: float) -> _evcore.Camera:
     try:
         return _camera_from_info(box.get(timeout=timeout_s))
     except queue.Empty:
-        raise TimeoutError(f"no sensor_msgs/CameraInfo on {topic} within {timeout_s:g} s: give --camera or --config") from None
+        raise TimeoutError(
+            f"no sensor_msgs/CameraInfo on {topic} within {timeout_s:g} s: give --camera or --config"
+        ) from None
     finally:
         node.destroy_subscription(sub)
 
@@ -213,7 +214,10 @@ def run_servo(
             pose = EePoseTopic(ros.node, ee_pose_topic, ee_pose_timeout_s)
             pose.wait(cfg.start_timeout_s)
         elif workspace is not None:
-            say("note: the rig's workspace box is not enforced: without --ee-pose-topic the arm's pose in its base frame is unknown")
+            say(
+                "note: the rig's workspace box is not enforced: "
+                "without --ee-pose-topic the arm's pose in its base frame is unknown"
+            )
             workspace = None
         send, pub = twist_publisher(ros.node, twist_topic, ee_frame)
         tracker = Tracker(camera, model, init_pose, solver=solver)

@@ -81,7 +81,6 @@ class LiveView:
                 return
 
 
-
 @contextmanager
 def viewing(
     viewer: Any, tracker: Any, source: Iterable[np.ndarray]
