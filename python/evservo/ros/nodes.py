@@ -92,8 +92,10 @@ def play(path: str | Path, topic: str, rate: float = 1.0, packet_us: int = 1000,
             msg.events = encoder.encode(np.ascontiguousarray(ev))
             pub.publish(msg)
             seq += 1
-        # Reliable delivery drains before the publisher (and its transient-local history) goes away.
-        pub.wait_for_all_acked(rclpy.duration.Duration(seconds=10.0))
+        # Reliable delivery drains before the publisher (and its transient-local history) goes away; a
+        # subscriber still matching (a slow start) gets the history meanwhile.
+        if not pub.wait_for_all_acked(rclpy.duration.Duration(seconds=max(10.0, wait_s))):
+            raise RuntimeError(f"{topic}: the subscribers did not acknowledge all {seq} packets within {wait_s:g} s")
         return seq
     finally:
         node.destroy_node()
