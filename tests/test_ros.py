@@ -192,7 +192,8 @@ def _servo(procs: _Procs, rec_path: Path, tmp_path: Path, *extra: str) -> tuple[
     servo = procs.evservo(
         "ros", "servo", "--config", str(_rig(tmp_path, rec.camera)), "--model", rec.object,
         "--init-pose", _pose_text(rec.gt_T[0]), "--twist-topic", "/arm/twist", "--ee-frame", "flange",
-        "--rate", "100", "--settle", "0.1", "--start-timeout", "60", "--stale-after", "0.5", "--out", str(tmp_path / "out"), *extra,
+        "--rate", "100", "--settle", "0.1", "--start-timeout", "60", "--stale-after", "0.5",
+        "--out", str(tmp_path / "out"), *extra,
     )  # fmt: skip
     procs.wait_line(servo, "waiting up to")  # subscribed: the player waits for it
     procs.evservo("ros", "play", str(rec_path), "--wait", "60")
