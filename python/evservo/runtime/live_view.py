@@ -68,8 +68,8 @@ class LiveView:
         last_seq = -1
         while not self._halt.wait(self.period_s):
             cycle, est = self._cycle, self.tracker.latest()
-            if cycle is None or est.seq == last_seq:
-                continue  # not servoing yet, or nothing new to show
+            if cycle is None or est.seq == last_seq or not self.tracker.running:
+                continue  # not servoing (yet, or any more), or nothing new to show
             last_seq = est.seq
             batches = [self._events.popleft() for _ in range(len(self._events))]
             events = np.concatenate(batches) if batches else np.empty(0, dtype=EVENT_CD)
