@@ -1,7 +1,7 @@
 """The rerun viewer: a tracking run written to an .rrd and read back with rerun's own CLI
 (``rerun rrd print``) holds one frame per 33 ms of sensor time, every stream the viewer promises,
-and the same tracking errors as poses.csv; so does a run of the real loop. Without rerun-sdk (an optional extra, not in CI), the
-options fail with an install hint (CI installs it: make test VIEWER=1)."""
+and the same tracking errors as poses.csv; so does a run of the real loop. Without rerun-sdk (an
+optional extra; CI installs it: make test VIEWER=1), the options fail with an install hint."""
 
 import json
 import re
