@@ -11,8 +11,9 @@ export PATH := $(abspath $(BIN)):$(HOME)/.cargo/bin:$(PATH)
 
 # `make test ROS=1 VIEWER=1` (what CI runs: .ci/run, and any CI runner that sets CI) first adds the
 # optional extras, so that the ROS 2 node tests (tests/test_ros.py) and the viewer's .rrd tests run
-# too; plain `make test` on a machine without them skips those tests, saying why. An extra that cannot be installed does not fail the suite: its tests are skipped with
-# the installer's last lines as the reason (.venv/.ros-failed, .venv/.viewer-failed).
+# too; plain `make test` on a machine without them skips those tests, saying why. An extra that cannot
+# be installed does not fail the suite: its tests are skipped with the installer's last lines as the
+# reason (.venv/.ros-failed, .venv/.viewer-failed).
 ROS ?= $(if $(CI),1)
 VIEWER ?= $(if $(CI),1)
 
@@ -54,9 +55,8 @@ demo: setup
 test-rust:
 	cargo test -p evcore
 
-# -rs: the reason of every skipped test (e.g. ROS 2 not installed) in the summary.
-test-python: setup
-	PYTHONUNBUFFERED=1 $(BIN)/python -m pytest -q -rs
+test-python: setup $(if $(ROS)$(VIEWER),try-extras)
+	PYTHONUNBUFFERED=1 $(BIN)/python -m pytest -q
 
 # The extras ROS=1 / VIEWER=1 ask for, each installed or its failure recorded for the tests to report.
 try-extras: setup
@@ -74,7 +74,7 @@ try-extras: setup
 stubtest: setup
 	$(BIN)/python -m mypy.stubtest evservo._evcore
 
-test: lint stubtest test-rust $(if $(ROS)$(VIEWER),try-extras) test-python
+test: lint stubtest test-rust test-python
 
 bench: setup
 	cargo bench -p evcore

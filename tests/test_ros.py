@@ -2,7 +2,8 @@
 
 * ``ros play`` publishes a simulated recording as EventPacket (evt3), ``ros track`` tracks it with the
   intrinsics from a CameraInfo the peer (tests/ros_peer.py) publishes; the poses it publishes on
-  PoseStamped and /tf equal those ``evservo track`` writes for the same recording.
+  PoseStamped and /tf equal those ``evservo track`` writes for the same recording (and, with rerun
+  installed, its ``--viewer-save`` recording holds one frame per 33 ms of sensor time).
 * ``ros servo`` servos on the played recording and publishes TwistStamped to a fake arm controller
   (the peer): one twist per control cycle at the control rate, each as the loop's log says it sent
   it; when the recording ends the watchdog brakes and stops the arm, and Ctrl-C stops it: in both
@@ -30,6 +31,9 @@ import pytest
 
 from evservo.cli import main
 from evservo.sim.record import load_recording
+
+#: Beyond the per-process timeouts below: no ROS test outlives this (s), whatever it waits on.
+pytestmark = pytest.mark.timeout(300)
 
 PEER = Path(__file__).with_name("ros_peer.py")
 #: Longest any ROS process of these tests may live (s).
@@ -150,7 +154,10 @@ def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros
     with _Procs(ros_env, tmp_path / "logs") as procs:
         peer = procs.start(str(PEER), str(got), "track", *intrinsics, "--idle-exit", "4")
         procs.wait_line(peer, "ready")
-        track = procs.evservo("ros", "track", "--model", rec.object, "--init-pose", init, "--idle-exit", "2")
+        # With rerun installed, the node's viewer records too (one frame per 33 ms of sensor time).
+        rrd = tmp_path / "track.rrd" if importlib.util.find_spec("rerun") else None
+        viewer = ["--viewer-save", str(rrd)] if rrd else []
+        track = procs.evservo("ros", "track", "--model", rec.object, "--init-pose", init, "--idle-exit", "2", *viewer)
         play = procs.evservo("ros", "play", str(small_rec), "--wait", "60")
         _, err_p = procs.wait(play)
         out_t, err_t = procs.wait(track)
@@ -170,6 +177,13 @@ def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros
     assert {(t[0], t[1]) for t in tfs} == {("camera", "object")}
     assert [s["t_us"] for s in status] == offline["t_us"].astype(int).tolist()
     assert [s["lost"] for s in status] == offline["lost"].astype(bool).tolist()
+    if rrd is not None:
+        from test_viewer import _rows_per_entity, _rrd_print
+
+        frames = len(np.unique(offline["t_us"].astype(np.int64) // 33_333))
+        rows = _rows_per_entity(_rrd_print(rrd, "-v"))
+        for entity in ("/camera/events", "/camera/sstar", "/field/distance", "/world/object", "/tracking/lost"):
+            assert rows.get(entity) == frames, (entity, rows)
 
 
 def _rig(tmp_path: Path, camera) -> Path:

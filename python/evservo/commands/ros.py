@@ -21,15 +21,21 @@ def run_track(args: argparse.Namespace) -> int:
     from evservo.ros.nodes import track
     from evservo.runtime.inputs import parse_pose
     from evservo.tracking import SOLVERS
+    from evservo.viewer import open_viewer
 
     if args.solver not in SOLVERS:
         raise ValueError(f"unknown solver {args.solver!r}; choose one of {SOLVERS}")
     camera = load_camera_file(args.camera) if args.camera else None
-    n = track(
-        args.model, parse_pose(args.init_pose), camera=camera, events_topic=args.events_topic,
-        camera_info_topic=args.camera_info_topic, pose_topic=args.pose_topic, status_topic=args.status_topic,
-        solver=args.solver, idle_exit_s=args.idle_exit,
-    )  # fmt: skip
+    viewer = open_viewer(args.viewer, args.viewer_save)
+    try:
+        n = track(
+            args.model, parse_pose(args.init_pose), camera=camera, events_topic=args.events_topic,
+            camera_info_topic=args.camera_info_topic, pose_topic=args.pose_topic, status_topic=args.status_topic,
+            solver=args.solver, idle_exit_s=args.idle_exit, viewer=viewer,
+        )  # fmt: skip
+    finally:
+        if viewer is not None:
+            viewer.close()
     print(f"ros track: {n} poses on {args.pose_topic}")
     return 0
 
@@ -91,6 +97,8 @@ def _run_servo(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    from evservo.commands.track import add_viewer_arguments
+
     r = sub.add_parser("ros", help="ROS 2 nodes (after `make ros`): play a file, track or servo from a topic")
     rs = r.add_subparsers(dest="ros_command", required=True)
     p = rs.add_parser("play", help="publish an event file as event_camera_msgs/EventPacket (evt3) in real time")
@@ -109,6 +117,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--status-topic", default="/evservo/status")
     t.add_argument("--solver", default="edft+", help="edft+, edopts or edft")
     t.add_argument("--idle-exit", type=float, help="exit after this many seconds without packets (once some came)")
+    add_viewer_arguments(t)
     t.set_defaults(func=run_track)
     _add_servo_parser(rs)
 

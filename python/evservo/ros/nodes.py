@@ -113,8 +113,10 @@ def track(
     events_topic: str = "/event_camera/events", camera_info_topic: str = "/event_camera/camera_info",
     pose_topic: str = "/evservo/pose", status_topic: str = "/evservo/status", camera_frame: str = "camera",
     object_frame: str = "object", solver: str = "edft+", batch_us: int = 1000, idle_exit_s: float | None = None,
+    viewer: Any = None,
 ) -> int:  # fmt: skip
     """Run the tracking node until Ctrl-C, or until ``idle_exit_s`` without packets once some came.
+    ``viewer``: a :class:`~evservo.viewer.RerunViewer` shown every update (the caller closes it).
     Returns the number of poses published."""
     rclpy = _ros()
     from event_camera_msgs.msg import EventPacket
@@ -171,6 +173,8 @@ def track(
                     ev, _, t_max = events.clamp_time(ev, t_max)
                     est = trk.update(ev)
                     _publish(est, end)
+                    if viewer is not None:
+                        viewer.track(end, ev, est, trk)
                     end += batch_us
             except BaseException as e:  # reported by the main thread
                 failure.append(e)
