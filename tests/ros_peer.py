@@ -6,6 +6,10 @@ TOPIC (a fake arm controller, as MoveIt Servo would subscribe).
 ``python tests/ros_peer.py OUT.json track W H FX FY CX CY D0 D1 D2 D3 D4``: records ``ros track``'s
 PoseStamped, /tf and status, and publishes CameraInfo with these intrinsics meanwhile.
 
+With ``--ee-pose-topic T --ee-pose x,y,z,qx,qy,qz,qw`` the twist mode also publishes that (fixed)
+end-effector pose as PoseStamped on T, as an arm's state publisher would, and stops publishing it
+``--pose-after-twist`` seconds after the first twist (the arm's state publisher dies).
+
 Runs until ``--max-s`` or ``--idle-exit`` seconds without a message once some came, then writes
 OUT.json (before shutting ROS down) and exits. Prints ``ready`` once subscribed.
 """
@@ -23,6 +27,10 @@ def main() -> int:
     ap.add_argument("params", nargs="*")
     ap.add_argument("--max-s", type=float, default=60.0)
     ap.add_argument("--idle-exit", type=float, default=2.0)
+    ap.add_argument("--ns", default="", help="track: the namespace of its topics (not /tf)")
+    ap.add_argument("--ee-pose-topic")
+    ap.add_argument("--ee-pose")
+    ap.add_argument("--pose-after-twist", type=float, default=float("inf"))
     args = ap.parse_args()
 
     import rclpy
@@ -39,7 +47,7 @@ def main() -> int:
         got.setdefault(kind, []).append(row)
         last[0] = time.monotonic()
 
-    info_pub = info = None
+    info_pub = info = pose_pub = pose = None
     if args.mode == "twist":
         from geometry_msgs.msg import TwistStamped
 
@@ -49,6 +57,14 @@ def main() -> int:
             keep("twists", [time.monotonic(), stamp, m.header.frame_id, [t.x, t.y, t.z, a.x, a.y, a.z]])
 
         node.create_subscription(TwistStamped, args.params[0], on_twist, qos)
+        if args.ee_pose_topic:
+            from geometry_msgs.msg import PoseStamped
+
+            pose_pub = node.create_publisher(PoseStamped, args.ee_pose_topic, 10)
+            pose = PoseStamped()
+            pose.header.frame_id = "base_link"
+            p, o = pose.pose.position, pose.pose.orientation
+            p.x, p.y, p.z, o.x, o.y, o.z, o.w = (float(v) for v in args.ee_pose.split(","))
     else:
         from geometry_msgs.msg import PoseStamped
         from sensor_msgs.msg import CameraInfo
@@ -60,19 +76,20 @@ def main() -> int:
         def xyz(p):
             return [p.x, p.y, p.z]
 
-        node.create_subscription(PoseStamped, "/evservo/pose", lambda m: keep("poses", xyz(m.pose.position)), _qos())
+        ns = args.ns or "/evservo"
+        node.create_subscription(PoseStamped, f"{ns}/pose", lambda m: keep("poses", xyz(m.pose.position)), _qos())
         node.create_subscription(
             TFMessage, "/tf",
             lambda m: keep("tfs", [m.transforms[0].header.frame_id, m.transforms[0].child_frame_id,
                                    xyz(m.transforms[0].transform.translation)]),
             _qos(),
         )  # fmt: skip
-        node.create_subscription(String, "/evservo/status", lambda m: keep("status", json.loads(m.data)), _qos())
+        node.create_subscription(String, f"{ns}/status", lambda m: keep("status", json.loads(m.data)), _qos())
         w, h, fx, fy, cx, cy, *d = (float(v) for v in args.params)
         info = CameraInfo(width=int(w), height=int(h), distortion_model="plumb_bob")
         info.k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
         info.d = d
-        info_pub = node.create_publisher(CameraInfo, "/event_camera/camera_info", 10)
+        info_pub = node.create_publisher(CameraInfo, f"{args.ns or '/event_camera'}/camera_info", 10)
     print("ready", flush=True)
     start = time.monotonic()
     while time.monotonic() - start < args.max_s:
@@ -80,6 +97,9 @@ def main() -> int:
             break
         if info_pub is not None:
             info_pub.publish(info)
+        first_twist = got["twists"][0][0] if got.get("twists") else None
+        if pose_pub is not None and (first_twist is None or time.monotonic() - first_twist < args.pose_after_twist):
+            pose_pub.publish(pose)
         rclpy.spin_once(node, timeout_sec=0.02)
     with open(args.out, "w") as f:
         json.dump(got, f)

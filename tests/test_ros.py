@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from evservo import geometry
 from evservo.cli import main
 from evservo.sim.record import load_recording
 
@@ -51,11 +52,19 @@ def _need_ros() -> None:
 @pytest.fixture
 def ros_env(tmp_path):
     """The environment of the test's ROS processes: its own domain, this machine only, over UDP (no
-    shared-memory segments left behind by a killed node), logs in the test's directory."""
+    shared-memory segments left behind by a killed node), logs in the test's directory. Fast DDS
+    takes domains 0-232 (its ports)."""
     return dict(
-        os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        os.environ, ROS_DOMAIN_ID=str(random.randint(1, 232)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
         FASTDDS_BUILTIN_TRANSPORTS="UDPv4", ROS_LOG_DIR=str(tmp_path / "roslog"), PYTHONUNBUFFERED="1",
     )  # fmt: skip
+
+
+@pytest.fixture
+def ns():
+    """A topic namespace of the test's own: other ROS tests on this machine (other checkouts) that
+    drew the same domain still cannot cross-talk, except on /tf."""
+    return f"/t{random.getrandbits(48):012x}"
 
 
 class _Procs:
@@ -141,7 +150,7 @@ def _pose_text(T: np.ndarray) -> str:
     return ",".join(repr(float(v)) for v in [*T[:3, 3], *Rotation.from_matrix(T[:3, :3]).as_quat()])
 
 
-def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros_env):
+def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros_env, ns):
     _need_ros()
     rec = load_recording(small_rec)
     init = _pose_text(rec.gt_T[0])
@@ -152,13 +161,16 @@ def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros
     got = tmp_path / "peer.json"
     intrinsics = [str(v) for v in (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, *cam.dist)]
     with _Procs(ros_env, tmp_path / "logs") as procs:
-        peer = procs.start(str(PEER), str(got), "track", *intrinsics, "--idle-exit", "4")
+        peer = procs.start(str(PEER), str(got), "track", *intrinsics, "--idle-exit", "4", "--ns", ns)
         procs.wait_line(peer, "ready")
         # With rerun installed, the node's viewer records too (one frame per 33 ms of sensor time).
         rrd = tmp_path / "track.rrd" if importlib.util.find_spec("rerun") else None
         viewer = ["--viewer-save", str(rrd)] if rrd else []
-        track = procs.evservo("ros", "track", "--model", rec.object, "--init-pose", init, "--idle-exit", "2", *viewer)
-        play = procs.evservo("ros", "play", str(small_rec), "--wait", "60")
+        topics = ["--events-topic", f"{ns}/events", "--camera-info-topic", f"{ns}/camera_info",
+                  "--pose-topic", f"{ns}/pose", "--status-topic", f"{ns}/status"]  # fmt: skip
+        track = procs.evservo("ros", "track", "--model", rec.object, "--init-pose", init, "--idle-exit", "2",
+                              *topics, *viewer)  # fmt: skip
+        play = procs.evservo("ros", "play", str(small_rec), "--topic", f"{ns}/events", "--wait", "60")
         _, err_p = procs.wait(play)
         out_t, err_t = procs.wait(track)
         procs.wait(peer)
@@ -198,19 +210,23 @@ def _rig(tmp_path: Path, camera) -> Path:
     return path
 
 
-def _servo(procs: _Procs, rec_path: Path, tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, subprocess.Popen]:
+def _servo(
+    procs: _Procs, ns: str, rec_path: Path, tmp_path: Path, *extra: str, peer_args: tuple[str, ...] = ()
+) -> tuple[subprocess.Popen, subprocess.Popen]:
     """Start the fake arm, then ``ros servo`` at 100 Hz, then ``ros play``; returns (servo, peer)."""
     rec = load_recording(rec_path)
-    peer = procs.start(str(PEER), str(tmp_path / "twists.json"), "twist", "/arm/twist", "--idle-exit", "3")
+    peer = procs.start(str(PEER), str(tmp_path / "twists.json"), "twist", f"{ns}/twist", "--idle-exit", "3",
+                       *peer_args)  # fmt: skip
     procs.wait_line(peer, "ready")
     servo = procs.evservo(
         "ros", "servo", "--config", str(_rig(tmp_path, rec.camera)), "--model", rec.object,
-        "--init-pose", _pose_text(rec.gt_T[0]), "--twist-topic", "/arm/twist", "--ee-frame", "flange",
+        "--init-pose", _pose_text(rec.gt_T[0]), "--twist-topic", f"{ns}/twist", "--ee-frame", "flange",
+        "--events-topic", f"{ns}/events",
         "--rate", "100", "--settle", "0.1", "--start-timeout", "60", "--stale-after", "0.5",
         "--out", str(tmp_path / "out"), *extra,
     )  # fmt: skip
     procs.wait_line(servo, "waiting up to")  # subscribed: the player waits for it
-    procs.evservo("ros", "play", str(rec_path), "--wait", "60")
+    procs.evservo("ros", "play", str(rec_path), "--topic", f"{ns}/events", "--wait", "60")
     return servo, peer
 
 
@@ -219,10 +235,10 @@ def _twists(tmp_path: Path) -> tuple[np.ndarray, np.ndarray, set[str]]:
     return np.array([r[1] for r in rows]), np.array([r[3] for r in rows]), {r[2] for r in rows}
 
 
-def test_servo_node_publishes_a_twist_per_cycle_and_a_zero_twist_when_the_events_stop(servo_rec, tmp_path, ros_env):
+def test_servo_node_publishes_a_twist_per_cycle_and_a_zero_twist_when_the_events_stop(servo_rec, tmp_path, ros_env, ns):
     _need_ros()
     with _Procs(ros_env, tmp_path / "logs") as procs:
-        servo, peer = _servo(procs, servo_rec, tmp_path, "--duration", "5")
+        servo, peer = _servo(procs, ns, servo_rec, tmp_path, "--duration", "5")
         out, err = procs.wait(servo)
         procs.wait(peer)
     # The recording ends long before the 5 s: no fresh pose for 0.5 s (a loaded machine delays poses by
@@ -250,10 +266,10 @@ def test_servo_node_publishes_a_twist_per_cycle_and_a_zero_twist_when_the_events
     np.testing.assert_allclose(np.rad2deg(np.linalg.norm(twists[:n, 3:], axis=1)), log["w_sent_dps"], atol=2e-4)
 
 
-def test_servo_node_stops_the_arm_on_ctrl_c(servo_rec, tmp_path, ros_env):
+def test_servo_node_stops_the_arm_on_ctrl_c(servo_rec, tmp_path, ros_env, ns):
     _need_ros()
     with _Procs(ros_env, tmp_path / "logs") as procs:
-        servo, peer = _servo(procs, servo_rec, tmp_path, "--duration", "5")
+        servo, peer = _servo(procs, ns, servo_rec, tmp_path, "--duration", "5")
         procs.wait_line(servo, "servoing for")
         time.sleep(0.2)
         servo.send_signal(signal.SIGINT)
@@ -265,6 +281,39 @@ def test_servo_node_stops_the_arm_on_ctrl_c(servo_rec, tmp_path, ros_env):
     _, twists, _ = _twists(tmp_path)
     assert len(twists) == summary["control_cycles"] + summary["gate"]["halts"] + 1
     assert np.any(twists[:-1]) and not np.any(twists[-1])
+
+
+def test_servo_node_twists_are_in_the_arm_pose_axes_and_a_lost_pose_topic_stops_it(servo_rec, tmp_path, ros_env, ns):
+    """With ``--ee-pose-topic`` the twists are the gated base-frame twists in the published pose's
+    axes; when the pose stops coming (0.2 s after the first twist; a pose 0.4 s old is lost, which
+    a loaded machine's delays never reach) the link counts as lost: the run stops with an error and
+    a zero twist."""
+    _need_ros()
+    T_w_e = geometry.pose((0.4, 0.1, 0.5), (2.9, 0.3, -0.4))
+    pose = _pose_text(T_w_e)
+    peer_args = ("--ee-pose-topic", f"{ns}/ee_pose", "--ee-pose", pose, "--pose-after-twist", "0.2")
+    with _Procs(ros_env, tmp_path / "logs") as procs:
+        servo, peer = _servo(
+            procs, ns, servo_rec, tmp_path, "--duration", "5", "--ee-pose-topic", f"{ns}/ee_pose", "--ee-pose-timeout",
+            "0.4", peer_args=peer_args,
+        )  # fmt: skip
+        out, err = procs.wait(servo)
+        procs.wait(peer)
+    assert servo.returncode == 1, out + err
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert f"end-effector pose on {ns}/ee_pose is" in (summary["error"] or ""), summary["ended"]
+    _, twists, _ = _twists(tmp_path)
+    n = summary["control_cycles"]
+    assert n >= 10 and np.any(twists[:n]), summary
+    assert not np.any(twists[n:]), (summary, twists[n - 2 :])
+    log = np.genfromtxt(tmp_path / "out" / "log.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    for part, cols, unit in ((slice(0, 3), ("vx_mps", "vy_mps", "vz_mps"), 1.0),
+                             (slice(3, 6), ("wx_dps", "wy_dps", "wz_dps"), np.pi / 180)):  # fmt: skip
+        sent_w = np.column_stack([log[f"sent_{c}"] for c in cols]) * unit
+        # R^T v row by row; log.csv keeps 6 significant digits (<= 5e-6 relative) of each base-frame
+        # component, and a row of R^T sums to at most sqrt(3) in magnitude.
+        tol = np.sqrt(3) * 5e-6 * np.abs(sent_w).max(axis=1, keepdims=True)
+        assert np.all(np.abs(twists[:n, part] - sent_w @ T_w_e[:3, :3]) <= tol)
 
 
 def test_ros_commands_without_ros_say_how_to_install(monkeypatch, capsys):
