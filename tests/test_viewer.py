@@ -120,7 +120,10 @@ def test_real_loop_run_reads_back_from_the_rrd(tmp_path):
     rrd, out = tmp_path / "run.rrd", tmp_path / "o"
     args = ["servo", "--robot", "sim", "--camera", str(rec_path), "--settle", "0.1", "--duration", "5", "--rate",
             "100", "--stale-after", "0.5", "--out", str(out), "--viewer-save", str(rrd)]  # fmt: skip
-    assert main(args) == 0
+    # 0: the recording ended; 1: the loop's watchdog stopped it (on a loaded machine the tracker may
+    # jump): either way the viewer recorded the servoing there was.
+    assert main(args) in (0, 1)
+    assert json.loads((out / "summary.json").read_text())["control_cycles"] > 0
     rows = _rows_per_entity(_rrd_print(rrd, "-v"))
     frames = rows.get("/errors/servo_pos_mm", 0)
     assert frames >= 1, rows

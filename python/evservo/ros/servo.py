@@ -199,6 +199,8 @@ def run_servo(
 ) -> RealLoopResult:  # fmt: skip
     """Run the loop through ROS (see the module docstring) and return what happened. Intrinsics:
     ``camera``, else the rig's. ``viewer``: a :class:`~evservo.viewer.RerunViewer` (closed here)."""
+    from rclpy.duration import Duration
+
     from evservo.robots.twist_sink import TwistSink
     from evservo.runtime.live_view import viewing
     from evservo.tracking import Tracker
@@ -231,7 +233,5 @@ def run_servo(
         finally:
             events.close()
             arm.close()  # a last zero twist
-            from rclpy.duration import Duration
-
             if not pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S)):
                 say(f"warning: the last (zero) twist on {twist_topic} was not acknowledged within {ACK_TIMEOUT_S:g} s")
