@@ -235,6 +235,32 @@ def _twists(tmp_path: Path) -> tuple[np.ndarray, np.ndarray, set[str]]:
     return np.array([r[1] for r in rows]), np.array([r[3] for r in rows]), {r[2] for r in rows}
 
 
+def _log(tmp_path: Path) -> np.ndarray:
+    return np.genfromtxt(tmp_path / "out" / "log.csv", delimiter=",", names=True, dtype=None, encoding=None)
+
+
+def _cycle_twists(twists: np.ndarray, log: np.ndarray) -> np.ndarray:
+    """Indices of the twists the loop's cycles sent (the rows of log.csv, in order, matched by the
+    norms of their linear and angular parts, which the end-effector axes keep). Every other twist
+    must be a stop (zero): the gate's own watchdog halts the arm when two cycles are more than its
+    0.05 s apart, as happens on a loaded machine."""
+    v, w = np.linalg.norm(twists[:, :3], axis=1), np.rad2deg(np.linalg.norm(twists[:, 3:], axis=1))
+    idx = []
+    for i in range(len(twists)):
+        k = len(idx)
+        # log.csv keeps 6 significant digits.
+        if (
+            k < len(log)
+            and np.isclose(v[i], log["v_sent_mps"][k], rtol=1e-5, atol=1e-9)
+            and np.isclose(w[i], log["w_sent_dps"][k], rtol=1e-5, atol=1e-9)
+        ):
+            idx.append(i)
+        else:
+            assert not np.any(twists[i]), f"twist {i} is neither cycle {k}'s (as logged) nor a stop: {twists[i]}"
+    assert len(idx) == len(log), f"only {len(idx)} of the {len(log)} cycles' twists were published"
+    return np.array(idx)
+
+
 def test_servo_node_publishes_a_twist_per_cycle_and_a_zero_twist_when_the_events_stop(servo_rec, tmp_path, ros_env, ns):
     _need_ros()
     with _Procs(ros_env, tmp_path / "logs") as procs:
@@ -255,15 +281,16 @@ def test_servo_node_publishes_a_twist_per_cycle_and_a_zero_twist_when_the_events
     assert len(twists) == gate["commands"] + gate["halts"] + 1
     assert gate["commands"] >= 0.2 * 100  # at least 0.2 s of servoing at 100 Hz before the recording ran out
     n = summary["control_cycles"]
-    assert np.median(np.diff(stamps[:n])) == pytest.approx(0.01, abs=0.002)  # published at the control rate
-    assert not np.any(twists[n:])  # the stops
-    assert not np.any(twists[-1])
-    assert np.any(twists[:n])  # the arm did move
-    # Each published twist is the one the loop logged as sent (end-effector axes: same norms).
-    log = np.genfromtxt(tmp_path / "out" / "log.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    log = _log(tmp_path)
     assert len(log) == n  # logged every cycle at 100 Hz
-    np.testing.assert_allclose(np.linalg.norm(twists[:n, :3], axis=1), log["v_sent_mps"], atol=2e-6)
-    np.testing.assert_allclose(np.rad2deg(np.linalg.norm(twists[:n, 3:], axis=1)), log["w_sent_dps"], atol=2e-4)
+    cyc = _cycle_twists(twists, log)  # each cycle's twist is the one the loop logged as sent, in order
+    assert not np.any(twists[cyc[-1] + 1 :])  # the stops
+    assert not np.any(twists[-1])
+    assert np.any(twists[cyc])  # the arm did move
+    # At the control rate: the loop ran on a 10 ms grid (cycles it could not make in time on this loaded
+    # machine are counted as missed, never made up), and each twist went out in its cycle.
+    assert (n + summary["missed_cycles"]) / log["t_s"][-1] == pytest.approx(100, rel=0.1)
+    assert np.median(np.abs(np.diff(stamps[cyc]) - np.diff(log["t_s"]))) < 0.001
 
 
 def test_servo_node_stops_the_arm_on_ctrl_c(servo_rec, tmp_path, ros_env, ns):
@@ -303,17 +330,17 @@ def test_servo_node_twists_are_in_the_arm_pose_axes_and_a_lost_pose_topic_stops_
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert f"end-effector pose on {ns}/ee_pose is" in (summary["error"] or ""), summary["ended"]
     _, twists, _ = _twists(tmp_path)
-    n = summary["control_cycles"]
-    assert n >= 10 and np.any(twists[:n]), summary
-    assert not np.any(twists[n:]), (summary, twists[n - 2 :])
-    log = np.genfromtxt(tmp_path / "out" / "log.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    log = _log(tmp_path)
+    assert len(log) == summary["control_cycles"] >= 10, summary
+    cyc = _cycle_twists(twists, log)
+    assert np.any(twists[cyc]) and not np.any(twists[cyc[-1] + 1 :])
     for part, cols, unit in ((slice(0, 3), ("vx_mps", "vy_mps", "vz_mps"), 1.0),
                              (slice(3, 6), ("wx_dps", "wy_dps", "wz_dps"), np.pi / 180)):  # fmt: skip
         sent_w = np.column_stack([log[f"sent_{c}"] for c in cols]) * unit
         # R^T v row by row; log.csv keeps 6 significant digits (<= 5e-6 relative) of each base-frame
         # component, and a row of R^T sums to at most sqrt(3) in magnitude.
         tol = np.sqrt(3) * 5e-6 * np.abs(sent_w).max(axis=1, keepdims=True)
-        assert np.all(np.abs(twists[:n, part] - sent_w @ T_w_e[:3, :3]) <= tol)
+        assert np.all(np.abs(twists[cyc, part] - sent_w @ T_w_e[:3, :3]) <= tol)
 
 
 def test_ros_commands_without_ros_say_how_to_install(monkeypatch, capsys):
