@@ -279,7 +279,7 @@ def test_servo_node_publishes_a_twist_per_cycle_and_a_zero_twist_when_the_events
     # loop's stop (counted in the summary) and the stop of closing the arm (after it), zeros last.
     assert gate["commands"] == summary["control_cycles"]
     assert len(twists) == gate["commands"] + gate["halts"] + 1
-    assert gate["commands"] >= 0.2 * 100  # at least 0.2 s of servoing at 100 Hz before the recording ran out
+    assert gate["commands"] >= 10  # servoed for a while before the recording ran out (0.4 s at most)
     n = summary["control_cycles"]
     log = _log(tmp_path)
     assert len(log) == n  # logged every cycle at 100 Hz
