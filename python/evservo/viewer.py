@@ -127,13 +127,15 @@ class RerunViewer:
 
     def servo(
         self, t_us: int, events: np.ndarray, est: Any, tracker: Any, *, T_w_c: np.ndarray,
-        T_c_o_des: np.ndarray, T_w_o_true: np.ndarray | None = None,
+        T_c_o_des: np.ndarray, T_w_o_true: np.ndarray | None = None, threaded: bool = False,
     ) -> None:  # fmt: skip
         """One control tick of a servo run: as :meth:`track`, in the bench's world frame (camera
-        at ``T_w_c``), with the servo error of the estimate against ``T_c_o_des``."""
+        at ``T_w_c``), with the servo error of the estimate against ``T_c_o_des``. ``threaded``:
+        the tracker runs its own thread (the real loop), whose S* and field this cannot read: S*
+        is projected at ``est`` instead and the field is not shown."""
         if not self._due(t_us, events):
             return
-        self._log_camera_views(tracker, est)
+        self._log_camera_views(tracker, est, threaded)
         self._pose("world/camera", T_w_c)
         self._pose("world/object", T_w_c @ est.T_c_o)
         self._pose("world/object_desired", T_w_c @ T_c_o_des)
@@ -147,7 +149,7 @@ class RerunViewer:
         self._rec.flush()
         self._rec.disconnect()
 
-    def _log_camera_views(self, tracker: Any, est: Any) -> None:
+    def _log_camera_views(self, tracker: Any, est: Any, threaded: bool = False) -> None:
         rr, rec = self._rr, self._rec
         events = np.concatenate(self._pending) if self._pending else np.empty(0)
         self._pending = []
@@ -157,9 +159,7 @@ class RerunViewer:
         rec.log(
             "camera/events", rr.EncodedImage(contents=_event_png(events, cam.width, cam.height), media_type="image/png")
         )
-        if getattr(tracker, "running", False):
-            # The threaded tracker keeps S* and its field inside its thread: S* is projected here
-            # at the published estimate, and the field is not shown.
+        if threaded:
             pts = _project_in_view(cam, tracker.points_o, est.T_c_o)
             field, (x0, y0) = np.zeros((0, 0), np.float32), (0, 0)
         else:

@@ -74,7 +74,9 @@ class LiveView:
             batches = [self._events.popleft() for _ in range(len(self._events))]
             events = np.concatenate(batches) if batches else np.empty(0, dtype=EVENT_CD)
             try:
-                self.viewer.servo(int(est.t_us), events, est, self.tracker, T_w_c=cycle[1], T_c_o_des=cycle[2])
+                self.viewer.servo(
+                    int(est.t_us), events, est, self.tracker, T_w_c=cycle[1], T_c_o_des=cycle[2], threaded=True
+                )
             except Exception as err:  # the viewer is an aid: it must not take the loop down
                 self.error = err
                 log.warning("viewer failed, switched off: %r", err)
