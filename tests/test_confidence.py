@@ -1,14 +1,16 @@
 """est.confidence and est.lost on scripted streams (evservo.sim.scenarios): the pose turning wrong is
 flagged within 50 ms and never trusted for more than 100 ms, and a locked pose is not flagged."""
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
 import pytest
+import trimesh
 
 from evservo import _evcore
 from evservo.sim.scenarios import run_scenario, scenarios, score
-from evservo.tracking import Tracker
+from evservo.tracking import AmbiguousModelWarning, Tracker
 
 DETECT_MS = 50.0
 CONFIDENT_WRONG_MS = 100.0
@@ -70,3 +72,20 @@ def test_starting_without_a_pose_needs_the_search_and_starts_lost():
     tracker = Tracker(cam, "box", None, view_spacing_deg=40.0)
     est = tracker.latest()
     assert est.lost and est.confidence == 0.0
+
+
+def test_an_ambiguous_model_says_which_axes_are_unobservable():
+    cam = _evcore.Camera.imx636()
+    T = np.eye(4)
+    T[2, 3] = 0.6
+    with pytest.warns(AmbiguousModelWarning, match="unobservable"):
+        plain = Tracker(cam, "cylinder", T)
+    assert plain.unobservable_axes == [(0.0, 1.0, 0.0)]
+    # A mesh of the user's own is examined by rendering: a sphere's attitude is unobservable about any axis.
+    with pytest.warns(AmbiguousModelWarning):
+        ball = Tracker(cam, trimesh.creation.icosphere(subdivisions=3, radius=0.08), T)
+    axes = np.array(ball.unobservable_axes)
+    assert axes.shape == (3, 3) and abs(np.linalg.det(axes)) > 0.9, axes
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert Tracker(cam, "box", T).unobservable_axes == []

@@ -46,8 +46,6 @@ use std::time::{Duration, Instant};
 /// Default confidence below which a pose is flagged lost (chosen from the ROC in
 /// benches/RESULTS.md, "Confidence and loss").
 pub const LOST_BELOW: f32 = 0.25;
-/// Below this confidence a pose is flagged lost at once, without waiting for `lost_hold_us`.
-pub const LOST_AT_ONCE_BELOW: f32 = 0.1;
 /// Default confidence a lost tracker needs before its pose is trusted again.
 pub const RELOCK_ABOVE: f32 = 0.4;
 
@@ -104,7 +102,7 @@ impl Default for TrackerConfig {
             inlier_px: 2.0,
             lost_below: LOST_BELOW,
             relock_above: RELOCK_ABOVE,
-            lost_hold_us: 20_000,
+            lost_hold_us: 15_000,
             search_fresh_us: 50_000,
             reacquire_above: 0.7,
             max_jump: 0.25,
@@ -849,10 +847,10 @@ impl Solver {
     }
 
     /// Whether the pose published at `t_us` with `confidence` is lost. A trusted pose turns lost
-    /// when its confidence stays below `lost_below` for `lost_hold_us` of event time, or at once
-    /// below [`LOST_AT_ONCE_BELOW`]: a pose trailing a fast move by a few pixels dips for an update
-    /// or two and recovers, one that slid off the object does not. A lost one is trusted again
-    /// from `relock_above` on.
+    /// when its confidence stays below `lost_below` for `lost_hold_us` of event time: a step that
+    /// lands a few pixels off (a search step on a fast turn) dips to 0 for an update and recovers
+    /// the next, a pose that slid off the object does not. A lost one is trusted again from
+    /// `relock_above` on.
     fn judge(&mut self, t_us: i64, confidence: f32) -> bool {
         if self.last.lost {
             return confidence < self.config.relock_above;
@@ -862,7 +860,7 @@ impl Solver {
             return false;
         }
         let since = *self.low_since_us.get_or_insert(t_us);
-        let lost = confidence < LOST_AT_ONCE_BELOW || t_us - since >= self.config.lost_hold_us;
+        let lost = t_us - since >= self.config.lost_hold_us;
         if lost {
             self.low_since_us = None;
         }
