@@ -139,6 +139,15 @@ def config_hash(cfg: EpisodeConfig, code: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def reuse(ep: Path, cfg: EpisodeConfig, code: str) -> dict | None:
+    """The summary of the finished episode in directory ``ep`` if its ``config_hash`` is that of
+    ``cfg`` under code version ``code``, else None (run it)."""
+    stamp = ep / "config_hash"
+    if (ep / "summary.json").exists() and stamp.exists() and stamp.read_text() == config_hash(cfg, code):
+        return _load_summary(ep / "summary.json")
+    return None
+
+
 def _remote_episode(cfg: EpisodeConfig) -> tuple[dict, dict[str, bytes]]:
     """One episode on a cluster worker: its summary and its output files' contents, which the
     submitting process writes into its own ``--out``."""
@@ -193,10 +202,9 @@ def run_all(
     summaries: dict[str, dict] = {}
     todo: dict[str, EpisodeConfig] = {}
     for _, key, cfg in rows:
-        ep = out / "episodes" / key
-        stamp = ep / "config_hash"
-        if (ep / "summary.json").exists() and stamp.exists() and stamp.read_text() == config_hash(cfg, code):
-            summaries[key] = _load_summary(ep / "summary.json")
+        done = reuse(out / "episodes" / key, cfg, code)
+        if done is not None:
+            summaries[key] = done
         else:
             todo[key] = cfg
     reused = len(summaries)

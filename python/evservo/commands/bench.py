@@ -7,10 +7,10 @@ import os
 import shutil
 from pathlib import Path
 
-SUITES = ("latency", "paper", "objects")
+SUITES = ("latency", "paper", "objects", "robustness")
 #: Each suite's report files, removed at the start so an interrupted run leaves none of an earlier one.
 REPORTS = {"latency": ("latency.md", "latency.json"), "paper": ("report.md", "results.json"),
-           "objects": ("objects.md", "objects.json")}
+           "objects": ("objects.md", "objects.json"), "robustness": ("robustness.md", "robustness.json")}
 #: Marks a directory of copied report files as ours to replace on the next run.
 STAMP = "SOURCE.txt"
 
@@ -38,8 +38,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {Path(args.out) / 'objects.md'} and objects.json")
         _refresh(args, "objects", Path(args.out) / "objects.md")
         return 0
+    if args.suite == "robustness":
+        from evservo.bench import robustness
+
+        if args.scheduler is not None or args.jobs != 1:
+            raise ValueError("--scheduler and --jobs apply to the paper suite only")
+        robustness.run(Path(args.out), quick=args.quick, events=args.events)
+        print(f"wrote {Path(args.out) / 'robustness.md'} and robustness.json")
+        section = "robustness" if args.events == "edges" else f"robustness-{args.events}"
+        _refresh(args, section, Path(args.out) / "robustness.md")
+        return 0
     if args.events != "edges" or args.scheduler is not None:
-        raise ValueError("--events and --scheduler apply to the paper suite only")
+        raise ValueError("--events applies to the paper and robustness suites, --scheduler to the paper suite only")
     from evservo.bench import latency
 
     samples = Path(os.environ.get("EVSERVO_SAMPLES", Path(__file__).resolve().parents[4] / "shared/event-samples"))
@@ -69,7 +79,7 @@ def _refresh(args: argparse.Namespace, section: str, report: Path) -> None:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    b = sub.add_parser("bench", help="benchmark suites: latency, paper, objects")
+    b = sub.add_parser("bench", help="benchmark suites: latency, paper, objects, robustness")
     b.add_argument("--suite", choices=SUITES, default="latency")
     b.add_argument("--out", default="out/bench", help="output directory")
     b.add_argument("--quick", action="store_true", help="short runs, one seed (for tests)")
@@ -78,7 +88,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--events",
         choices=("edges", "render"),
         default="edges",
-        help="paper suite event source: the idealised edges, or the rendered camera (lab preset, arms drawn)",
+        help="paper and robustness suites' event source: the idealised edges, or the rendered camera (paper "
+        "suite: lab preset, arms drawn)",
     )
     b.add_argument(
         "--scheduler",
