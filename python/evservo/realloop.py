@@ -356,7 +356,7 @@ def run_real_loop(
             if ctrl is not None and ctrl.state == "ok" and pose is not None:
                 last_accepted_t = p_t
             if stopping is None and ctrl is not None and (ctrl.watchdog or ctrl.state == "rejected"):
-                why = _watchdog_reason(ctrl, feed.lost, cfg.stale_after_s)
+                why = _watchdog_reason(ctrl, cfg.stale_after_s)
                 stopping, stop_t = f"watchdog: {why}", t
                 spells.append(WatchdogSpell(t, last_accepted_t, None, None, why))
                 log.info("watchdog at %.3f s: %s; braking to a stop", t, why)
@@ -452,11 +452,9 @@ def _settle(tracker: Any, pump: _CameraPump, cfg: RealLoopConfig, clock: Callabl
     return est
 
 
-def _watchdog_reason(cmd: Any, lost: bool, stale_after_s: float) -> str:
+def _watchdog_reason(cmd: Any, stale_after_s: float) -> str:
     if cmd.state == "rejected" and not cmd.watchdog:
         return f"pose jump: {cmd.reason}"
-    if lost:
-        return f"no fresh pose for {stale_after_s} s: the tracker reports the object lost"
     return f"no fresh pose for {stale_after_s} s"
 
 
@@ -570,7 +568,8 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
         "gt_track_rot_rms_deg": gt_rot,
         "loss": loss,
         "lost_fraction": float(np.mean(r.lost)) if n else 0.0,
-        "holding_s": float(np.sum(r.holding)) / r.config.rate_hz,
+        # Each cycle holds until the next one (missed cycles included).
+        "holding_s": float(np.sum(np.diff(r.t_s, append=r.t_s[-1:])[r.holding])) if n else 0.0,
         "camera_rot_mean_deg": float(np.rad2deg(np.mean(cam_rot))) if n else float("nan"),
         "camera_travel_max_m": float(np.max(np.linalg.norm(d_cam, axis=1))) if n else 0.0,
         "tracker_rate_hz": n_steps / r.tracker_s,

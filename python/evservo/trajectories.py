@@ -15,8 +15,8 @@ Kinds (peak speed along x ``speed_mps``, peak angular rate ``rot_rate_dps``):
   representations fade and SCARF does not).
 - ``reversal``: along x at constant speed, turning back abruptly at ±amplitude (a triangle wave).
 - ``leave-return``: leaves the view and comes back elsewhere (issue 12): after 0.2 s a dash of
-  :data:`LEAVE_M` along x at peak speed ``speed_mps``, faster than a camera can follow, then 0.6 s out
-  there, then back at a third of that speed to another place (``-0.2·LEAVE_M`` along x, 0.05 m along
+  :data:`LEAVE_M` along x at peak speed ``speed_mps``, faster than a camera can follow, then 0.4 s out
+  there, then back at half that speed to another place (``-0.2·LEAVE_M`` along x, 0.05 m along
   z) turned by 25° about z, and rest.
 - a CSV path with header ``t_s,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad`` (displacement, rotation vector),
   interpolated linearly (rotation by slerp) and held constant beyond its ends.
@@ -108,9 +108,9 @@ def _leave_return(t: np.ndarray, speed_mps: float) -> np.ndarray:
     """The ``leave-return`` kind (module docstring); a smoothstep over a distance d and time T peaks at
     1.5·d/T."""
     t_out = 1.5 * LEAVE_M / speed_mps
-    t_back0 = 0.2 + t_out + 0.6
+    t_back0 = 0.2 + t_out + 0.4
     back = np.array([-0.2 * LEAVE_M, 0.0, 0.05])
-    t_back = 1.5 * float(np.linalg.norm(back - [LEAVE_M, 0, 0])) / (speed_mps / 3)
+    t_back = 1.5 * float(np.linalg.norm(back - [LEAVE_M, 0, 0])) / (speed_mps / 2)
     s_out = _smoothstep((t - 0.2) / t_out)[:, None]
     s_back = _smoothstep((t - t_back0) / t_back)[:, None]
     trans = (1 - s_back) * s_out * np.array([LEAVE_M, 0.0, 0.0]) + s_back * back

@@ -5,13 +5,13 @@ Each scenario is a closed-loop episode (:func:`evservo.sim.episode.run_episode`,
 (``end_on_loss=False``) and scores the tracker's ``lost`` flag against the truth
 (:mod:`evservo.runtime.loss`), for each of EDFT⁺, EDOPTS and EDFT:
 
-- ``occlusion-0.5s``, ``occlusion-2s``: the object fully hidden from 1.0 s (no object events, the
+- ``occlusion-0.5s``, ``occlusion-2s``: the object fully hidden from 0.6 s (no object events, the
   background goes on), the trans trajectory at 0.3 m/s;
 - ``leave-return``: the object dashes out of the view at 1.5 m/s and comes back elsewhere, turned by
   25° (Z = 0.6 m);
 - ``events-stop``: every event lost for 0.5 s while the object moves;
 - ``wrong-model``: the tracker is given the drill's model, the object is the box;
-- ``pure-noise``: from 1.0 s to 2.0 s the scene's events are replaced by 10 Mev/s of uniform noise
+- ``pure-noise``: from 0.6 s to 1.6 s the scene's events are replaced by 10 Mev/s of uniform noise
   (10⁷ events);
 - ``start-without-pose``: the tracker starts without a pose and must find the object; the loop waits
   at rest and captures the desired pose once locked.
@@ -41,19 +41,21 @@ EVENTS = ("edges", "render")
 
 
 def scenarios(quick: bool = False) -> dict[str, EpisodeConfig]:
-    """The suite's scenarios by name (edft+, edges source); ``quick`` shortens the long ones."""
-    base = EpisodeConfig(speed_mps=0.3, feedforward=True, end_on_loss=False, duration_s=2.5)
-    long_occlusion = 1.0 if quick else 2.0
+    """The suite's scenarios by name (edft+, edges source). Disturbances start at 0.6 s, once the
+    target's 0.5 s start ramp is over, and episodes run 0.6 s past them (the issue's re-lock bound is
+    0.3 s). ``quick`` shortens the long occlusion to 1 s."""
+    base = EpisodeConfig(speed_mps=0.3, feedforward=True, end_on_loss=False)
+    t0, long_occlusion = 0.6, 1.0 if quick else 2.0
     return {
-        "occlusion-0.5s": replace(base, occlusions=((1.0, 1.5),)),
+        "occlusion-0.5s": replace(base, occlusions=((t0, t0 + 0.5),), duration_s=t0 + 1.1),
         f"occlusion-{long_occlusion:g}s": replace(
-            base, occlusions=((1.0, 1.0 + long_occlusion),), duration_s=2.0 + long_occlusion
+            base, occlusions=((t0, t0 + long_occlusion),), duration_s=t0 + long_occlusion + 0.6
         ),
-        "leave-return": replace(base, trajectory="leave-return", speed_mps=1.5, distance_m=0.6, duration_s=3.5),
-        "events-stop": replace(base, dropout_s=(1.0, 1.5), duration_s=2.0),
-        "wrong-model": replace(base, model="drill", duration_s=1.5),
-        "pure-noise": replace(base, noise_s=(1.0, 2.0), noise_rate_hz=1e7, duration_s=2.5),
-        "start-without-pose": replace(base, start_lost=True, duration_s=2.0),
+        "leave-return": replace(base, trajectory="leave-return", speed_mps=1.5, distance_m=0.6, duration_s=2.8),
+        "events-stop": replace(base, dropout_s=(t0, t0 + 0.5), duration_s=t0 + 1.1),
+        "wrong-model": replace(base, model="drill", duration_s=1.0),
+        "pure-noise": replace(base, noise_s=(t0, t0 + 1.0), noise_rate_hz=1e7, duration_s=t0 + 1.2),
+        "start-without-pose": replace(base, start_lost=True, duration_s=1.5),
     }
 
 
@@ -121,6 +123,10 @@ def _ms(v: float | None) -> str:
     return "never" if v == float("inf") else f"{v:.0f}"
 
 
+def _with_ms(cell: str) -> str:
+    return cell if cell in ("–", "never") else f"{cell} ms"
+
+
 def _cells(s: dict) -> list[str]:
     if "failed" in s:
         return ["–"] * 6
@@ -142,8 +148,8 @@ def _line(row: dict) -> str:
         return f"{row['key']}: could not run: {s['failed']}"
     c = _cells(s)
     return (
-        f"{row['key']}: detection {c[0]} ms, re-lock {c[1]} ms, confident-wrong {c[2]} ms, false loss {c[3]}, "
-        f"held {c[4]} s"
+        f"{row['key']}: detection {_with_ms(c[0])}, re-lock {_with_ms(c[1])}, confident-wrong {_with_ms(c[2])}, "
+        f"false loss {c[3]}, held {c[4]} s"
     )
 
 

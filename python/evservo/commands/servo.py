@@ -302,7 +302,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="live camera, or an event file replayed at real time")  # fmt: skip
     r.add_argument("--model", help="object: built-in name (box, drill, football) or mesh path (default: config's)")
     r.add_argument("--config", metavar="RIG.yaml", help="rig config: camera intrinsics, hand-eye T_e_c, limits")
-    r.add_argument("--init-pose", metavar="x,y,z,qx,qy,qz,qw", help="object in camera at start (default: config's)")
+    r.add_argument(
+        "--init-pose",
+        metavar="x,y,z,qx,qy,qz,qw",
+        help="object in camera at start (default: config's, else none: the tracker searches and the arm holds "
+        "still until it locks)",
+    )
     r.add_argument("--desired-pose", metavar="x,y,z,qx,qy,qz,qw",
                    help="object in camera to servo to (default: the tracked pose when servoing starts)")  # fmt: skip
     r.add_argument(
