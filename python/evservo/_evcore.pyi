@@ -83,6 +83,7 @@ class Estimate:
     inlier_fraction: float
     visible_fraction: float
     n_events: int
+    confidence: float
     lost: bool
 
 @final
@@ -90,8 +91,8 @@ class Tracker:
     def __new__(
         cls,
         camera: Camera,
-        points_o: _F64,
-        T_c_o: _F64,
+        points_o: _F64 | None,
+        T_c_o: _F64 | None,
         solver: str = "edft+",
         frontend: str = "scarf",
         n_search: int = 4,
@@ -103,6 +104,11 @@ class Tracker:
         max_ingest_rate: float | None = None,
         anti_flicker_hz: list[float] = ...,
         held_axes: _F64 | None = None,
+        mesh: Mesh | None = None,
+        view_spacing_deg: float = 15.0,
+        depth_range_m: tuple[float, float] = ...,  # (0.3, 1.5)
+        n_points: int = 1000,
+        seed: int = 0,
     ) -> Tracker: ...
     def update(self, events: _Events) -> Estimate: ...
     def ingest(self, events: _Events) -> None: ...

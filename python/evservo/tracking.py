@@ -78,7 +78,8 @@ class Tracker:
     Args:
         camera: the event camera (raw sensor geometry with distortion).
         mesh: a built-in object name ("box", "drill", "football"), a mesh path, or a ``trimesh.Trimesh``.
-        T_c_o: initial pose of the object in the camera optical frame (4×4, metres).
+        T_c_o: initial pose of the object in the camera optical frame (4×4, metres), or None to start
+            lost and search the whole image for the object (this turns ``reacquire`` on).
         solver: "edft+" (1 LM step then ``n_search`` search steps), "edopts" (search only), "edft" (LM only).
         frontend: "scarf" (velocity-invariant, default), "fixed-count" or "eros".
         n_points: size of the model point set S*.
@@ -93,15 +94,23 @@ class Tracker:
         max_ingest_rate: instead, a fixed cap on the events ingested per second of event time.
         anti_flicker_hz: drop events of pixels firing periodically at these light flicker frequencies
             (Hz; 100 under 50 Hz mains, 120 under 60 Hz, or both) before the front-end.
+        reacquire: render a bank of viewpoint templates at start-up (S* every ``view_spacing_deg``
+            over the viewing sphere, searched over ``depth_range_m``, metres), so that the tracker
+            finds the object again by itself while lost (one global search per update) and takes S*
+            from the view nearest to the current attitude. It costs a few hundred renders at
+            construction (seconds). Default: only when ``T_c_o`` is None.
 
-    ``latest()`` reads ``lost=True`` until the first update has locked onto the events.
+    Every estimate carries ``confidence`` (0–1: how much better than chance the events support the
+    pose) and ``lost`` (the pose is not to be trusted: not yet confirmed by an update, confidence
+    below the tracker's threshold, the model mostly out of view, or stale events while the object
+    was moving). ``latest()`` reads ``lost=True`` until the first update has locked onto the events.
     """
 
     def __init__(
         self,
         camera: _evcore.Camera,
         mesh: object,
-        T_c_o: np.ndarray,
+        T_c_o: np.ndarray | None,
         solver: str = "edft+",
         frontend: str = "scarf",
         *,
@@ -114,13 +123,23 @@ class Tracker:
         max_ingest_rate: float | None = None,
         anti_flicker_hz: float | Iterable[float] | None = None,
         symmetries: list[Symmetry] | None = None,
+        reacquire: bool | None = None,
+        view_spacing_deg: float = 15.0,
+        depth_range_m: tuple[float, float] = (0.3, 1.5),
     ) -> None:
-        T = as_pose(T_c_o, "T_c_o")
+        T = None if T_c_o is None else as_pose(T_c_o, "T_c_o")
+        if reacquire is None:
+            reacquire = T is None
+        elif T is None and not reacquire:
+            raise ValueError("starting without a pose (T_c_o=None) needs reacquire=True to search for the object")
+        core_mesh = mesh if isinstance(mesh, _evcore.Mesh) else to_core_mesh(load_object(mesh))
         self.camera = camera
         self.solver = solver
         self.frontend = frontend
-        self.points_o = model_point_set(camera, mesh, T, n_points=n_points, seed=seed)
-        auto_levels, auto_tau = field_scale(image_extent_px(camera, self.points_o, T))
+        #: S* at the initial pose (None when starting without one: the bank's views provide it).
+        self.points_o = None if T is None else model_point_set(camera, core_mesh, T, n_points=n_points, seed=seed)
+        # Without a pose the object's image size is unknown: the paper's pyramid and τ.
+        auto_levels, auto_tau = (3, 10.0) if T is None else field_scale(image_extent_px(camera, self.points_o, T))
         levels = auto_levels if levels is None else levels
         tau_px = auto_tau if tau_px is None else tau_px
         if symmetries is None:
@@ -131,6 +150,8 @@ class Tracker:
             camera, self.points_o, T, solver=solver, frontend=frontend, n_search=n_search, tau_px=tau_px,
             levels=levels, ingest_core_share=ingest_core_share, max_ingest_rate=max_ingest_rate,
             anti_flicker_hz=_frequencies(anti_flicker_hz), held_axes=np.array(held, float).reshape(-1, 6),
+            mesh=core_mesh if reacquire else None, view_spacing_deg=view_spacing_deg,
+            depth_range_m=depth_range_m, n_points=n_points, seed=seed,
         )  # fmt: skip
 
     @property
@@ -236,8 +257,9 @@ class Tracker:
 
     def stats(self) -> dict[str, float]:
         """Live counters: ``lm_steps``, ``search_steps``, ``lm_seconds``, ``search_seconds``,
-        ``events_offered``, ``events_ingested``, ``events_dropped`` (thinned under overload) and
-        ``jumps_rejected``."""
+        ``events_offered``, ``events_ingested``, ``events_dropped`` (thinned under overload),
+        ``jumps_rejected``, and the global searches run while lost: ``reacquire_passes``,
+        ``reacquire_seconds``."""
         return self._core.stats()
 
     def projected_points(self) -> np.ndarray:

@@ -7,9 +7,11 @@
 //! [`sim`] is the event-camera simulator and [`io`] decodes recorded event streams.
 
 pub mod camera;
+pub mod confidence;
 pub mod error;
 pub mod event;
 pub mod field;
+pub mod freshness;
 pub mod image;
 pub mod io;
 pub mod mesh;
@@ -20,6 +22,7 @@ pub mod se3;
 pub mod sim;
 pub mod solve;
 pub mod surface;
+pub mod templates;
 pub mod tracker;
 
 pub use camera::{Camera, UndistortLut};

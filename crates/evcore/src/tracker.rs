@@ -24,9 +24,11 @@
 //! level, which is most of why they are cheap.
 
 use crate::camera::{Camera, UndistortLut};
+use crate::confidence::{evidence, Evidence, Query};
 use crate::error::{ensure, Error, Result};
 use crate::event::{validate_events, EventRecords};
 use crate::field::{DistanceField, FieldParams};
+use crate::freshness::{max_age_us, MotionMemory, Recency};
 use crate::image::Roi;
 use crate::se3::Pose;
 use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32, ViewMask};
@@ -34,11 +36,18 @@ use crate::solve::lm::{lm_pyramid, LmParams};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
 use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
+use crate::templates::{camera_direction_o, TemplateBank};
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::sync::atomic::{fence, AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::{self, JoinHandle, Thread};
 use std::time::{Duration, Instant};
+
+/// Default confidence below which a pose is flagged lost (chosen from the ROC in
+/// benches/RESULTS.md, "Confidence and loss").
+pub const LOST_BELOW: f32 = 0.3;
+/// Default confidence a lost tracker needs before its pose is trusted again.
+pub const RELOCK_ABOVE: f32 = 0.45;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrackerConfig {
@@ -56,8 +65,16 @@ pub struct TrackerConfig {
     pub search_roi_margin_px: f64,
     /// A point within this distance of an event counts as an inlier (full-res pixels).
     pub inlier_px: f32,
-    /// Below this inlier fraction the estimate is flagged lost.
-    pub lost_inlier_fraction: f32,
+    /// The estimate turns lost when its confidence falls below this ...
+    pub lost_below: f32,
+    /// ... and is trusted again only once it reaches this (hysteresis against flicker).
+    pub relock_above: f32,
+    /// While lost, the global search only sees pixels whose block fired within this time (µs).
+    pub search_fresh_us: i64,
+    /// A candidate of the global search is accepted only with at least this acquisition
+    /// confidence: higher than `relock_above`, as a sweep over thousands of templates finds
+    /// partial fits that a tracked pose, which moves continuously, never jumps to.
+    pub reacquire_above: f32,
     /// An update that moves the pose further than this (metres or radians) is rejected as a jump.
     pub max_jump: f64,
     /// How much the threaded tracker may thin an overloading stream; see [`IngestLimit`].
@@ -81,7 +98,10 @@ impl Default for TrackerConfig {
             roi_margin_px: 48.0,
             search_roi_margin_px: 16.0,
             inlier_px: 2.0,
-            lost_inlier_fraction: 0.15,
+            lost_below: LOST_BELOW,
+            relock_above: RELOCK_ABOVE,
+            search_fresh_us: 50_000,
+            reacquire_above: 0.7,
             max_jump: 0.25,
             held_axes_o: Vec::new(),
             ingest_limit: IngestLimit::default(),
@@ -142,7 +162,10 @@ pub struct Estimate {
     pub visible_fraction: f32,
     /// Events ingested into the front-end so far (after any thinning).
     pub n_events: u64,
-    /// True while the object is not tracked, including before the first update (not yet locked).
+    /// How much better than chance the events support this pose, 0–1 (see [`crate::confidence`]).
+    pub confidence: f32,
+    /// The pose is not to be trusted: before the first update confirms it, once the confidence
+    /// fell below `lost_below` until it is back above `relock_above`, or the model is out of view.
     pub lost: bool,
 }
 
@@ -160,6 +183,9 @@ pub struct TrackerStats {
     /// Events left out: thinned under overload or removed as flicker (offered − ingested).
     pub events_dropped: u64,
     pub jumps_rejected: u64,
+    /// Global searches run while lost, and their time (wall clock, seconds).
+    pub reacquire_passes: u64,
+    pub reacquire_seconds: f64,
 }
 
 /// Model points closer than this to the border of what the sensor sees leave the cost (full-res
@@ -219,7 +245,7 @@ impl EstimateCell {
             e.n_events,
             u64::from(e.lost),
             u64::from(e.visible_fraction.to_bits()),
-            0,
+            u64::from(e.confidence.to_bits()),
         ]
     }
 
@@ -240,6 +266,7 @@ impl EstimateCell {
             n_events: w[12],
             lost: w[13] != 0,
             visible_fraction: f32::from_bits(w[14] as u32),
+            confidence: f32::from_bits(w[15] as u32),
         }
     }
 
@@ -286,6 +313,8 @@ pub struct TrackerOutput {
     lm_ns: AtomicU64,
     search_ns: AtomicU64,
     jumps_rejected: AtomicU64,
+    reacquire_passes: AtomicU64,
+    reacquire_ns: AtomicU64,
     /// Kernel thread id of the running solver thread (Linux), 0 when unknown or not running.
     solver_tid: AtomicI64,
 }
@@ -303,6 +332,8 @@ impl TrackerOutput {
             lm_ns: AtomicU64::new(0),
             search_ns: AtomicU64::new(0),
             jumps_rejected: AtomicU64::new(0),
+            reacquire_passes: AtomicU64::new(0),
+            reacquire_ns: AtomicU64::new(0),
             solver_tid: AtomicI64::new(0),
         }
     }
@@ -325,6 +356,8 @@ impl TrackerOutput {
             events_ingested: ingested,
             events_dropped: offered.saturating_sub(ingested),
             jumps_rejected: get(&self.jumps_rejected),
+            reacquire_passes: get(&self.reacquire_passes),
+            reacquire_seconds: get(&self.reacquire_ns) as f64 * 1e-9,
         }
     }
 
@@ -439,6 +472,8 @@ pub struct Ingest {
     /// Indices of the events that passed the flicker filter (scratch).
     unflickered: Vec<u32>,
     pixels: Vec<u32>,
+    /// Newest event time per block, for the solver's freshness test.
+    recency: Arc<Recency>,
     out: Arc<TrackerOutput>,
 }
 
@@ -479,7 +514,9 @@ impl Ingest {
         self.pixels.clear();
         if keep >= 1.0 {
             for j in 0..m {
-                let (x, y) = events.xy(index(j));
+                let i = index(j);
+                let (x, y) = events.xy(i);
+                self.recency.record(x, y, events.t_at(i));
                 self.pixels.push(self.lut.map(x, y));
             }
         } else {
@@ -487,7 +524,9 @@ impl Ingest {
             let (step, end) = (1.0 / keep, m as f64);
             let mut pos = self.thinning.next_pos;
             while pos < end {
-                let (x, y) = events.xy(index(pos as usize));
+                let i = index(pos as usize);
+                let (x, y) = events.xy(i);
+                self.recency.record(x, y, events.t_at(i));
                 self.pixels.push(self.lut.map(x, y));
                 pos += step;
             }
@@ -512,6 +551,7 @@ impl Ingest {
     /// Forget every event and the time line (e.g. after the camera restarted its clock).
     pub fn reset(&mut self) {
         self.writer.reset();
+        self.recency.reset();
         self.last_t_us = None;
         self.thinning.reset();
         if let Some(f) = &mut self.flicker {
@@ -538,6 +578,17 @@ pub struct Solver {
     last: Estimate,
     mask: Vec<u8>,
     out: Arc<TrackerOutput>,
+    /// Newest event time per block, written by the ingest half.
+    recency: Arc<Recency>,
+    /// The model's recent image speed (how fresh its support must be).
+    motion: MotionMemory,
+    /// Lost for real (confidence fell, or no pose was given): the next steps search globally when
+    /// there is a template bank. Not set by an unconfirmed [`Solver::reset_pose`].
+    searching: bool,
+    /// Viewpoint templates for re-acquisition and S* swaps (None: neither).
+    bank: Option<Arc<TemplateBank>>,
+    /// Camera direction (object frame) of the view the current S* was rendered from.
+    points_dir_o: Option<Vector3<f64>>,
 }
 
 fn check_pose(pose: &Pose) -> Result<()> {
@@ -560,6 +611,7 @@ impl Solver {
         t_c_o: Pose,
         config: TrackerConfig,
         reader: Arc<dyn SurfaceReader>,
+        recency: Arc<Recency>,
         out: Arc<TrackerOutput>,
     ) -> Result<Self> {
         let rect = sensor.rectified();
@@ -590,11 +642,17 @@ impl Solver {
                 inlier_fraction: 0.0,
                 visible_fraction: 1.0,
                 n_events: 0,
+                confidence: 0.0,
                 lost: true,
             },
             config,
             mask: Vec::new(),
             out,
+            recency,
+            motion: MotionMemory::default(),
+            searching: false,
+            bank: None,
+            points_dir_o: None,
         };
         solver.publish();
         Ok(solver)
@@ -619,15 +677,24 @@ impl Solver {
     fn reset_pose(&mut self, t_c_o: Pose) -> Result<()> {
         check_pose(&t_c_o)?;
         self.last.pose = t_c_o;
-        // Not locked until an update confirms the new pose against the events.
+        // Not locked until an update confirms the new pose against the events; but a given pose
+        // is tracked from, not searched for.
         self.last.lost = true;
+        self.searching = false;
+        self.motion.reset();
         self.schedule.restart();
         self.publish();
         Ok(())
     }
 
-    /// One update: rebuild the field from the current active set and run the next scheduled step.
+    /// One update: rebuild the field from the current active set and run the next scheduled step
+    /// (or, while lost with a template bank, one global search).
     fn step(&mut self) -> Estimate {
+        if self.searching {
+            if let Some(bank) = self.bank.clone() {
+                return self.reacquire(&bank);
+            }
+        }
         let kind = self.schedule.next_step();
         let started = Instant::now();
         let pose = self.last.pose;
@@ -639,9 +706,7 @@ impl Solver {
             StepKind::Search => self.config.search_roi_margin_px,
         };
         let Some(roi) = self.roi(margin) else {
-            self.last.lost = true;
-            self.last.seq += 1;
-            self.publish();
+            self.lose(t_us, n_events, 1.0);
             return self.last;
         };
         let mut visible = std::mem::take(&mut self.visible);
@@ -654,10 +719,7 @@ impl Solver {
         let visible_fraction = visible.len() as f32 / self.points.len() as f32;
         if visible.len() < MIN_VISIBLE_POINTS {
             self.visible = visible;
-            self.last.lost = true;
-            self.last.visible_fraction = visible_fraction;
-            self.last.seq += 1;
-            self.publish();
+            self.lose(t_us, n_events, visible_fraction);
             return self.last;
         }
         let n_levels = if kind == StepKind::Lm {
@@ -668,7 +730,7 @@ impl Solver {
         self.mask.resize(roi.area(), 0);
         self.reader.fill_mask(roi, &mut self.mask);
         let built = self.field.build(&self.mask, roi, n_levels);
-        let new_pose = match (built, kind) {
+        let new_pose = match (&built, kind) {
             (Err(_), _) => pose,
             (Ok(()), StepKind::Lm) => {
                 let levels: Vec<_> = (0..n_levels)
@@ -709,6 +771,22 @@ impl Solver {
             self.config.inlier_px,
         );
         self.visible = visible;
+        let confidence = if built.is_ok() {
+            self.confidence_at(t_us, &accepted)
+        } else {
+            0.0
+        };
+        let lost = if self.last.lost {
+            confidence < self.config.relock_above
+        } else {
+            confidence < self.config.lost_below
+        };
+        // A pose that fell (not one still waiting for its first confirmation) is searched for.
+        self.searching = self.searching || (lost && !self.last.lost);
+        if !lost {
+            self.searching = false;
+            self.follow_view(&accepted);
+        }
         self.last = Estimate {
             pose: accepted,
             t_us,
@@ -718,7 +796,8 @@ impl Solver {
             inlier_fraction: quality.inlier_fraction,
             visible_fraction,
             n_events,
-            lost: quality.inlier_fraction < self.config.lost_inlier_fraction,
+            confidence,
+            lost,
         };
         self.publish();
         let ns = started.elapsed().as_nanos() as u64;
@@ -729,6 +808,154 @@ impl Solver {
         count.fetch_add(1, Ordering::Relaxed);
         time.fetch_add(ns, Ordering::Relaxed);
         self.last
+    }
+}
+
+impl Solver {
+    /// Publish an update without a pose change: the object is out of view (or nothing of it
+    /// projects), so the pose cannot be trusted and is searched for.
+    fn lose(&mut self, t_us: i64, n_events: u64, visible_fraction: f32) {
+        self.last.seq += 1;
+        self.last.t_us = t_us;
+        self.last.n_events = n_events;
+        self.last.visible_fraction = visible_fraction;
+        self.last.confidence = 0.0;
+        self.last.lost = true;
+        self.searching = true;
+        self.publish();
+    }
+
+    /// The confidence of `pose` on the last built full-resolution field at `t_us`, its support
+    /// required to be fresh while the model has been moving in the image.
+    fn confidence_at(&mut self, t_us: i64, pose: &Pose) -> f32 {
+        let speed = self.motion.update(t_us, pose, &self.pins[0], &self.points);
+        let fresh = max_age_us(speed).map(|age| t_us - age);
+        self.evidence_of(pose, &self.points, fresh).confidence()
+    }
+
+    /// The evidence for `pose` with `points` on the last built full-resolution field, its chance
+    /// level taken over the search region around the projected model (the same region for LM and
+    /// search steps, so both score alike); `fresh_since`: supported points also need an event in
+    /// their block since then (µs).
+    fn evidence_of(&self, pose: &Pose, points: &[[f32; 3]], fresh_since: Option<i64>) -> Evidence {
+        let rig = Rigid32::from_pose(pose);
+        let pin = self.pins[0];
+        let uv = points
+            .iter()
+            .filter_map(|&x| pin.project(rig.apply(x)))
+            .map(|(u, v)| (f64::from(u), f64::from(v)));
+        let Some(region) = Roi::around(
+            uv,
+            self.config.search_roi_margin_px,
+            self.rect.width,
+            self.rect.height,
+        ) else {
+            return Evidence::default();
+        };
+        let query = Query {
+            inlier_px: self.config.inlier_px,
+            region,
+            image: (self.rect.width, self.rect.height),
+            fresh_since: fresh_since.map(|t| (&*self.recency, t)),
+        };
+        evidence(self.field.level(0), &pin, &rig, points, &query)
+    }
+
+    /// One global search over the whole image (see [`crate::templates`]): the bank's best
+    /// candidates and the current pose are refined by LM on a full-image field, and the most
+    /// confident is taken if it passes `reacquire_above`; otherwise the tracker stays lost.
+    fn reacquire(&mut self, bank: &TemplateBank) -> Estimate {
+        let started = Instant::now();
+        let t_us = self.out.newest_t_us().unwrap_or(self.last.t_us);
+        let n_events = self.out.ingested.load(Ordering::Relaxed);
+        let full = Roi::full(self.rect.width, self.rect.height);
+        let levels = self.config.field.levels;
+        self.mask.resize(full.area(), 0);
+        self.reader.fill_mask(full, &mut self.mask);
+        // Search only what fired recently: the front-end keeps stale edges (where the object was)
+        // and accumulates background noise, both of which would draw the search.
+        self.recency
+            .keep_fresh(&mut self.mask, full, t_us - self.config.search_fresh_us);
+        let mut best: Option<(f32, Pose, Option<usize>)> = None;
+        if self.field.build(&self.mask, full, levels).is_ok() {
+            let coarsest = levels - 1;
+            let mut candidates: Vec<(Pose, Option<usize>)> = bank
+                .search(self.field.level(coarsest), &self.pins[coarsest as usize])
+                .into_iter()
+                .map(|(pose, view, _)| (pose, Some(view)))
+                .collect();
+            candidates.push((self.last.pose, None));
+            let pyramid: Vec<_> = (0..levels)
+                .rev()
+                .map(|l| (self.field.level(l), self.pins[l as usize]))
+                .collect();
+            for (pose, view) in candidates {
+                let points = view.map_or(&self.points, |v| &bank.views[v].points_o);
+                let pivot = centroid(points);
+                let refined = lm_pyramid(&pyramid, pose, points, &pivot, &self.config.lm).pose;
+                if check_pose(&refined).is_err() {
+                    continue;
+                }
+                let c = self
+                    .evidence_of(&refined, points, None)
+                    .acquisition_confidence();
+                if best.as_ref().is_none_or(|b| c > b.0) {
+                    best = Some((c, refined, view));
+                }
+            }
+        }
+        self.last.seq += 1;
+        self.last.t_us = t_us;
+        self.last.n_events = n_events;
+        self.last.step = StepKind::Lm;
+        match best {
+            Some((c, pose, view)) if c >= self.config.reacquire_above => {
+                if let Some(v) = view {
+                    self.use_view(bank, v);
+                }
+                self.last.pose = pose;
+                self.last.confidence = c;
+                self.last.lost = false;
+                self.last.visible_fraction = 1.0;
+                self.searching = false;
+                self.motion.reset();
+                self.schedule.restart();
+            }
+            other => {
+                self.last.confidence = other.map_or(0.0, |b| b.0);
+                self.last.lost = true;
+            }
+        }
+        self.publish();
+        self.out.reacquire_passes.fetch_add(1, Ordering::Relaxed);
+        self.out
+            .reacquire_ns
+            .fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        self.last
+    }
+
+    /// Take S* from view `v` of `bank` (between updates: the next step uses it).
+    fn use_view(&mut self, bank: &TemplateBank, v: usize) {
+        self.points.clone_from(&bank.views[v].points_o);
+        self.pivot_o = centroid(&self.points);
+        self.points_dir_o = Some(bank.views[v].dir_o);
+    }
+
+    /// Swap S* for the bank's view nearest to `pose` once the object has turned more than ¾ of the
+    /// view spacing away from the view the current S* came from: its visible edges have changed.
+    fn follow_view(&mut self, pose: &Pose) {
+        let (Some(bank), Some(dir)) = (self.bank.clone(), self.points_dir_o) else {
+            return;
+        };
+        let now = camera_direction_o(pose, &bank.centre_o());
+        let limit = 0.75 * bank.params.view_spacing_deg.to_radians();
+        if dir.dot(&now).clamp(-1.0, 1.0).acos() <= limit {
+            return;
+        }
+        let (v, angle) = bank.nearest_view(pose);
+        if angle < limit {
+            self.use_view(&bank, v);
+        }
     }
 }
 
@@ -769,9 +996,11 @@ impl TrackerCore {
             inlier_fraction: 0.0,
             visible_fraction: 1.0,
             n_events: 0,
+            confidence: 0.0,
             lost: true,
         };
         let out = Arc::new(TrackerOutput::new(&placeholder));
+        let recency = Arc::new(Recency::new(&camera, &camera.rectified()));
         let ingest = Ingest {
             width: camera.width,
             height: camera.height,
@@ -784,13 +1013,35 @@ impl TrackerCore {
                 .transpose()?,
             unflickered: Vec::new(),
             pixels: Vec::new(),
+            recency: Arc::clone(&recency),
             out: Arc::clone(&out),
         };
-        let solver = Solver::new(camera, points_o, t_c_o, config, reader, out)?;
+        let solver = Solver::new(camera, points_o, t_c_o, config, reader, recency, out)?;
         ensure(solver.roi(0.0).is_some(), || {
             "the object does not project into the image at the initial pose".into()
         })?;
         Ok(Self { ingest, solver })
+    }
+
+    /// A tracker without a pose: it starts lost and searches the whole image with `bank` until the
+    /// confidence test accepts a candidate.
+    pub fn searching(camera: &Camera, bank: TemplateBank, config: TrackerConfig) -> Result<Self> {
+        let view = &bank.views[0];
+        let t = Vector3::new(0.0, 0.0, bank.params.depth_max_m) - view.r_c_o * bank.centre_o();
+        let pose = Pose::from_parts(Translation3::from(t), view.r_c_o);
+        let mut core = Self::new(camera, view.points_o.clone(), pose, config)?;
+        core.solver.points_dir_o = Some(view.dir_o);
+        core.solver.bank = Some(Arc::new(bank));
+        core.solver.searching = true;
+        Ok(core)
+    }
+
+    /// Re-acquire with `bank` while lost, and take S* from its nearest view when the object turns
+    /// away from where the current S* was rendered.
+    pub fn set_templates(&mut self, bank: TemplateBank) {
+        let s = &mut self.solver;
+        s.points_dir_o = Some(camera_direction_o(&s.last.pose, &bank.centre_o()));
+        s.bank = Some(Arc::new(bank));
     }
 
     pub fn config(&self) -> &TrackerConfig {
@@ -1033,6 +1284,7 @@ impl ThreadedTracker {
                 last.pose,
                 config,
                 ingest.writer.reader(),
+                Arc::clone(&ingest.recency),
                 Arc::clone(&self.out),
             )
             .expect("these parameters built a solver before");
@@ -1072,6 +1324,7 @@ impl ThreadedTracker {
             flicker: None,
             unflickered: Vec::new(),
             pixels: Vec::new(),
+            recency: Arc::clone(&self.ingest.recency),
             out: Arc::clone(&self.out),
         };
         std::mem::replace(&mut self.ingest, inert)
@@ -1337,6 +1590,7 @@ mod tests {
             inlier_fraction: 0.5,
             visible_fraction: 0.75,
             n_events: seq * 3,
+            confidence: 0.25,
             lost: false,
         };
         let cell = Arc::new(EstimateCell::new(&mk(0)));

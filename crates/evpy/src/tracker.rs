@@ -3,11 +3,14 @@
 use crate::camera::PyCamera;
 use crate::errors::to_py;
 use crate::events::{records, EventArray};
+use crate::model::PyMesh;
 use crate::pose::pose_arg;
 use evcore::field::FieldParams;
+use evcore::pointset::PointSetParams;
 use evcore::se3::pose_to_matrix;
 use evcore::solve::{LmParams, SolverMode, StepKind};
 use evcore::surface::FrontEnd;
+use evcore::templates::{BankParams, TemplateBank};
 use evcore::tracker::{
     Estimate, IngestLimit, ThreadedTracker, TrackerConfig, TrackerCore, TrackerOutput,
 };
@@ -63,6 +66,12 @@ impl PyEstimate {
     fn n_events(&self) -> u64 {
         self.inner.n_events
     }
+    /// How much better than chance the events support this pose, 0–1.
+    #[getter]
+    fn confidence(&self) -> f32 {
+        self.inner.confidence
+    }
+    /// The pose is not to be trusted (not yet confirmed, low confidence, or out of view).
     #[getter]
     fn lost(&self) -> bool {
         self.inner.lost
@@ -70,7 +79,7 @@ impl PyEstimate {
     fn __repr__(&self) -> String {
         let t = self.inner.pose.translation.vector;
         format!(
-            "Estimate(seq={}, t_us={}, step={}, t=({:.4}, {:.4}, {:.4}) m, cost={:.3}, inliers={:.2}, lost={})",
+            "Estimate(seq={}, t_us={}, step={}, t=({:.4}, {:.4}, {:.4}) m, cost={:.3}, inliers={:.2}, confidence={:.2}, lost={})",
             self.inner.seq,
             self.inner.t_us,
             self.step(),
@@ -79,9 +88,26 @@ impl PyEstimate {
             t.z,
             self.inner.cost,
             self.inner.inlier_fraction,
+            self.inner.confidence,
             self.inner.lost
         )
     }
+}
+
+/// S* from an (N, 3) array (metres, object frame).
+fn points_arg(points_o: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<[f32; 3]>> {
+    let pts = points_o.as_array();
+    if pts.ncols() != 3 {
+        return Err(PyValueError::new_err(format!(
+            "points_o must have shape (N, 3), got {:?}",
+            pts.shape()
+        )));
+    }
+    Ok(pts
+        .rows()
+        .into_iter()
+        .map(|r| [r[0] as f32, r[1] as f32, r[2] as f32])
+        .collect())
 }
 
 fn matrix_to_py<'py>(py: Python<'py>, m: &[[f64; 4]; 4]) -> Bound<'py, PyArray2<f64>> {
@@ -112,19 +138,25 @@ pub struct PyTracker {
 
 #[pymethods]
 impl PyTracker {
-    /// Tracker(camera, points_o (N,3) metres in the object frame, T_c_o (4,4), solver="edft+",
-    /// frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0,
-    /// ingest_core_share=0.5, max_ingest_rate=None, anti_flicker_hz=[], held_axes=None):
-    /// held_axes (K, 6) are continuous symmetry axes of the object (unit axis, then a point on it;
-    /// object frame, metres) whose rotation every update keeps at the prior.
+    /// Tracker(camera, points_o (N,3) metres in the object frame or None, T_c_o (4,4) or None,
+    /// solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6,
+    /// roi_margin_px=48.0, ingest_core_share=0.5, max_ingest_rate=None, anti_flicker_hz=[],
+    /// held_axes=None, mesh=None, view_spacing_deg=15.0, depth_range_m=(0.3, 1.5), n_points=1000,
+    /// seed=0): held_axes (K, 6) are continuous symmetry axes of the object (unit axis, then a
+    /// point on it; object frame, metres) whose rotation every update keeps at the prior.
+    ///
+    /// With `mesh`, a bank of viewpoint templates (S* of `n_points` every `view_spacing_deg` over
+    /// the viewing sphere, searched over `depth_range_m`) lets the tracker find the object again by
+    /// itself while lost and keeps S* in step with the attitude. Without `T_c_o` and `points_o` the
+    /// tracker starts lost and searches; that needs `mesh`.
     #[new]
-    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None, anti_flicker_hz=Vec::new(), held_axes=None))]
+    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None, anti_flicker_hz=Vec::new(), held_axes=None, mesh=None, view_spacing_deg=15.0, depth_range_m=(0.3, 1.5), n_points=1000, seed=0))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         camera: &PyCamera,
-        points_o: PyReadonlyArray2<'_, f64>,
-        T_c_o: PyReadonlyArray2<'_, f64>,
+        points_o: Option<PyReadonlyArray2<'_, f64>>,
+        T_c_o: Option<PyReadonlyArray2<'_, f64>>,
         solver: &str,
         frontend: &str,
         n_search: usize,
@@ -136,20 +168,14 @@ impl PyTracker {
         max_ingest_rate: Option<f64>,
         anti_flicker_hz: Vec<f64>,
         held_axes: Option<PyReadonlyArray2<'_, f64>>,
+        mesh: Option<PyRef<'_, PyMesh>>,
+        view_spacing_deg: f64,
+        depth_range_m: (f64, f64),
+        n_points: usize,
+        seed: u64,
     ) -> PyResult<Self> {
-        let pose = pose_arg(&T_c_o)?;
-        let pts = points_o.as_array();
-        if pts.ncols() != 3 {
-            return Err(PyValueError::new_err(format!(
-                "points_o must have shape (N, 3), got {:?}",
-                pts.shape()
-            )));
-        }
-        let points: Vec<[f32; 3]> = pts
-            .rows()
-            .into_iter()
-            .map(|r| [r[0] as f32, r[1] as f32, r[2] as f32])
-            .collect();
+        let pose = T_c_o.map(|m| pose_arg(&m)).transpose()?;
+        let points = points_o.map(|p| points_arg(&p)).transpose()?;
         let ingest_limit = match (max_ingest_rate, ingest_core_share) {
             (Some(rate), _) => IngestLimit::EventsPerSecond(rate),
             (None, Some(share)) => IngestLimit::CoreShare(share),
@@ -187,9 +213,42 @@ impl PyTracker {
             anti_flicker_hz,
             ..TrackerConfig::default()
         };
+        let bank_params = BankParams {
+            view_spacing_deg,
+            depth_min_m: depth_range_m.0,
+            depth_max_m: depth_range_m.1,
+            ..BankParams::default()
+        };
+        let point_params = PointSetParams {
+            max_points: n_points,
+            seed,
+            ..PointSetParams::default()
+        };
         let cam = camera.inner;
+        let mesh = mesh.map(|m| Arc::clone(&m.inner));
         let core = py
-            .detach(move || TrackerCore::new(&cam, points, pose, config))
+            .detach(move || -> evcore::Result<TrackerCore> {
+                let rect = cam.checked()?.rectified();
+                let bank = mesh
+                    .map(|m| TemplateBank::render(&m, &rect, bank_params, &point_params))
+                    .transpose()?;
+                match (pose, points, bank) {
+                    (Some(pose), Some(points), bank) => {
+                        let mut core = TrackerCore::new(&cam, points, pose, config)?;
+                        if let Some(b) = bank {
+                            core.set_templates(b);
+                        }
+                        Ok(core)
+                    }
+                    (None, None, Some(bank)) => TrackerCore::searching(&cam, bank, config),
+                    (None, None, None) => Err(evcore::Error::InvalidArgument(
+                        "starting without a pose needs the mesh to search for".into(),
+                    )),
+                    _ => Err(evcore::Error::InvalidArgument(
+                        "give both points_o and T_c_o, or neither (to start by searching)".into(),
+                    )),
+                }
+            })
             .map_err(to_py)?;
         Ok(Self {
             output: core.output(),
@@ -337,6 +396,8 @@ impl PyTracker {
         d.set_item("events_ingested", s.events_ingested)?;
         d.set_item("events_dropped", s.events_dropped)?;
         d.set_item("jumps_rejected", s.jumps_rejected)?;
+        d.set_item("reacquire_passes", s.reacquire_passes)?;
+        d.set_item("reacquire_seconds", s.reacquire_seconds)?;
         Ok(d)
     }
 

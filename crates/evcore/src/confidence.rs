@@ -1,0 +1,300 @@
+//! How much the events support a pose: the evidence behind `Estimate::confidence`.
+//!
+//! The inlier fraction alone (points within `inlier_px` of an active pixel) cannot tell a locked
+//! pose from a pose sitting in dense clutter or pure noise: with enough active pixels every point
+//! is "near an event". What separates them is how much *more* support the model gets at the pose
+//! than a random placement would get from the same events. The chance level is measured, not
+//! modelled: it is the fraction of the region around the projected model whose field value passes
+//! the same inlier test, i.e. the probability that a point dropped anywhere there is an inlier.
+//!
+//! confidence = support − chance, clamped to [0, 1], where support is the supported fraction of
+//! the model points in the image; with less than half the model in the image the object counts
+//! as gone. Support may also be required to be fresh (see [`crate::freshness`]). Candidates of a
+//! global search also have to explain the event mass around them
+//! ([`Evidence::acquisition_confidence`]).
+
+use crate::field::FieldLevel;
+use crate::freshness::Recency;
+use crate::image::Roi;
+use crate::solve::cost::{Pinhole, Rigid32};
+
+/// What the events say at one pose (all fractions in [0, 1]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Evidence {
+    /// Fraction of the model points in the image that lie within the inlier distance of an active
+    /// pixel (and, when freshness is demanded, of a recent event).
+    pub support: f32,
+    /// Fraction of the pixels of the region around the model within the inlier distance of an
+    /// active pixel: the support a random placement would get.
+    pub chance: f32,
+    /// Fraction of the model points that project inside the image.
+    pub visible: f32,
+    /// Fraction of the active pixels of the region that lie near the projected model (within
+    /// about [`EXPLAIN_CELL_PX`] to 2× that): how much of what fires there the pose accounts for.
+    /// A pose fitted to part of the object's edges (a smaller, farther copy sitting on one
+    /// corner) has high support but leaves most of the events around it unexplained.
+    pub explained: f32,
+}
+
+/// Below this visible fraction the object counts as having left the view: too little of it is
+/// left to pin six degrees of freedom, whatever the support.
+pub const MIN_VISIBLE: f32 = 0.5;
+
+impl Evidence {
+    /// Support in excess of chance (0: no better than random, 1: every point supported in a region
+    /// otherwise empty); 0 once less than [`MIN_VISIBLE`] of the model is in the image. Not
+    /// normalised by the headroom 1 − chance: in events dense enough that chance nears 1 there is
+    /// no evidence left, and the ratio would turn its noise into certainty.
+    pub fn confidence(&self) -> f32 {
+        if self.visible < MIN_VISIBLE {
+            return 0.0;
+        }
+        (self.support - self.chance).clamp(0.0, 1.0)
+    }
+
+    /// The stricter test for a pose found by a global search: [`Self::confidence`] scaled down when
+    /// the pose accounts for less than [`EXPLAINED_ENOUGH`] of the event mass around it. A sweep
+    /// over thousands of templates finds partial fits (a smaller, farther view sitting on one
+    /// corner of the object's edges) that a continuously tracked pose never jumps to. Not used
+    /// while tracking: with the camera moving, background clutter rightly stays unexplained.
+    pub fn acquisition_confidence(&self) -> f32 {
+        self.confidence() * (self.explained / EXPLAINED_ENOUGH).min(1.0)
+    }
+}
+
+/// Where and how to look for evidence.
+#[derive(Debug, Clone, Copy)]
+pub struct Query<'a> {
+    /// A point within this field value of an active pixel is supported (full-resolution pixels).
+    pub inlier_px: f32,
+    /// The region the chance level is measured over (full-resolution pixels; clipped to the
+    /// level's region).
+    pub region: Roi,
+    /// The image size (pixels).
+    pub image: (u32, u32),
+    /// When set, a supported point also needs an event in its block at or after this time (µs).
+    pub fresh_since: Option<(&'a Recency, i64)>,
+}
+
+/// Grid stride (pixels) of the chance estimate: the fraction of a region's pixels near an event
+/// needs a few thousand samples, not all of them.
+const CHANCE_STRIDE: usize = 2;
+
+/// The evidence for `pose` (points of S* in the object frame) on the full-resolution `level`.
+pub fn evidence(
+    level: &FieldLevel,
+    pin: &Pinhole,
+    pose: &Rigid32,
+    points: &[[f32; 3]],
+    q: &Query<'_>,
+) -> Evidence {
+    let (mut supported, mut visible) = (0usize, 0usize);
+    let (w, h) = (q.image.0 as f32, q.image.1 as f32);
+    for &x in points {
+        let Some((u, v)) = pin.project(pose.apply(x)) else {
+            continue;
+        };
+        if u < -0.5 || v < -0.5 || u > w - 0.5 || v > h - 0.5 {
+            continue;
+        }
+        visible += 1;
+        let fresh = q
+            .fresh_since
+            .is_none_or(|(recency, since)| recency.last_us(u, v) >= since);
+        supported += usize::from(fresh && level.sample(u, v) <= q.inlier_px);
+    }
+    Evidence {
+        support: supported as f32 / visible.max(1) as f32,
+        chance: chance_level(level, q.region, q.inlier_px),
+        visible: visible as f32 / points.len().max(1) as f32,
+        explained: explained_fraction(level, pin, pose, points, q.region),
+    }
+}
+
+/// A pose that accounts for this much of the event mass around it is not penalised: noise and
+/// clutter rightly leave the rest unexplained.
+pub const EXPLAINED_ENOUGH: f32 = 0.5;
+
+/// Cell side (pixels) of the occupancy grid the projected model is drawn into for `explained`.
+pub const EXPLAIN_CELL_PX: u32 = 4;
+
+fn explained_fraction(
+    level: &FieldLevel,
+    pin: &Pinhole,
+    pose: &Rigid32,
+    points: &[[f32; 3]],
+    region: Roi,
+) -> f32 {
+    let c = EXPLAIN_CELL_PX;
+    let (gw, gh) = (
+        region.width.div_ceil(c) as usize,
+        region.height.div_ceil(c) as usize,
+    );
+    if gw == 0 || gh == 0 {
+        return 0.0;
+    }
+    let mut near = vec![false; gw * gh];
+    for &x in points {
+        let Some((u, v)) = pin.project(pose.apply(x)) else {
+            continue;
+        };
+        let (gx, gy) = (
+            ((u - region.x0 as f32) / c as f32).floor(),
+            ((v - region.y0 as f32) / c as f32).floor(),
+        );
+        if gx < 0.0 || gy < 0.0 || gx >= gw as f32 || gy >= gh as f32 {
+            continue;
+        }
+        // The cell and its 8 neighbours: motion smear and a pixel or two of misalignment.
+        let (gx, gy) = (gx as usize, gy as usize);
+        for ny in gy.saturating_sub(1)..(gy + 2).min(gh) {
+            for nx in gx.saturating_sub(1)..(gx + 2).min(gw) {
+                near[ny * gw + nx] = true;
+            }
+        }
+    }
+    let lr = level.roi;
+    let x0 = region.x0.max(lr.x0);
+    let y0 = region.y0.max(lr.y0);
+    let x1 = (region.x0 + region.width).min(lr.x0 + lr.width);
+    let y1 = (region.y0 + region.height).min(lr.y0 + lr.height);
+    let (mut active, mut explained) = (0usize, 0usize);
+    let w = lr.width as usize;
+    for y in y0..y1 {
+        let row = &level.value[(y - lr.y0) as usize * w..][..w];
+        let grow = ((y - region.y0) / c) as usize * gw;
+        for x in x0..x1 {
+            if row[(x - lr.x0) as usize] == 0.0 {
+                active += 1;
+                explained += usize::from(near[grow + ((x - region.x0) / c) as usize]);
+            }
+        }
+    }
+    if active == 0 {
+        0.0
+    } else {
+        explained as f32 / active as f32
+    }
+}
+
+/// Fraction of the pixels of `region` ∩ the level's region whose field value is ≤ `inlier_px`;
+/// pixels of `region` outside the built level count as far (no event there is known).
+fn chance_level(level: &FieldLevel, region: Roi, inlier_px: f32) -> f32 {
+    let lr = level.roi;
+    let x0 = region.x0.max(lr.x0);
+    let y0 = region.y0.max(lr.y0);
+    let x1 = (region.x0 + region.width).min(lr.x0 + lr.width);
+    let y1 = (region.y0 + region.height).min(lr.y0 + lr.height);
+    let total = (region.width as usize).div_ceil(CHANCE_STRIDE)
+        * (region.height as usize).div_ceil(CHANCE_STRIDE);
+    if total == 0 || x0 >= x1 || y0 >= y1 {
+        return 0.0;
+    }
+    let w = lr.width as usize;
+    let mut near = 0usize;
+    for y in (y0..y1).step_by(CHANCE_STRIDE) {
+        let row = &level.value[(y - lr.y0) as usize * w..][..w];
+        near += row[(x0 - lr.x0) as usize..(x1 - lr.x0) as usize]
+            .iter()
+            .step_by(CHANCE_STRIDE)
+            .filter(|&&f| f <= inlier_px)
+            .count();
+    }
+    (near as f32 / total as f32).min(1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Camera;
+    use crate::field::{DistanceField, FieldParams};
+    use crate::rng::Rng;
+    use crate::solve::cost::testing;
+    use nalgebra::{Isometry3, Vector3};
+
+    /// Rasterise the projected points of `pose` into a full-image mask, plus `noise` random pixels.
+    fn mask_of(pin: &Pinhole, pose: &Isometry3<f64>, points: &[[f32; 3]], noise: usize) -> Vec<u8> {
+        let (w, h) = (1280usize, 720usize);
+        let mut m = vec![0u8; w * h];
+        let rig = Rigid32::from_pose(pose);
+        for &x in points {
+            if let Some((u, v)) = pin.project(rig.apply(x)) {
+                let (u, v) = (u.round() as i64, v.round() as i64);
+                if (0..w as i64).contains(&u) && (0..h as i64).contains(&v) {
+                    m[v as usize * w + u as usize] = 1;
+                }
+            }
+        }
+        let mut rng = Rng::new(3);
+        for _ in 0..noise {
+            m[rng.below((w * h) as u64) as usize] = 1;
+        }
+        m
+    }
+
+    fn score(mask: &[u8], pin: &Pinhole, pose: &Isometry3<f64>, points: &[[f32; 3]]) -> Evidence {
+        let full = Roi::full(1280, 720);
+        let mut field = DistanceField::new(FieldParams::default()).unwrap();
+        field.build(mask, full, 1).unwrap();
+        let rig = Rigid32::from_pose(pose);
+        let uv = points
+            .iter()
+            .filter_map(|&x| pin.project(rig.apply(x)))
+            .map(|(u, v)| (f64::from(u), f64::from(v)));
+        let region = Roi::around(uv, 16.0, 1280, 720).unwrap_or(full);
+        let q = Query {
+            inlier_px: 2.0,
+            region,
+            image: (1280, 720),
+            fresh_since: None,
+        };
+        evidence(field.level(0), pin, &rig, points, &q)
+    }
+
+    #[test]
+    fn separates_a_locked_pose_from_a_wrong_one_and_from_pure_noise() {
+        let pin = Pinhole::at_level(&Camera::imx636(), 0);
+        let truth = Isometry3::new(Vector3::new(0.0, 0.0, 0.6), Vector3::new(0.3, 0.4, 0.1));
+        let (points, _) = testing::visible_box_model(&truth);
+        // Locked on the edges with 2000 noise pixels sprinkled over the image.
+        let locked = score(&mask_of(&pin, &truth, &points, 2000), &pin, &truth, &points);
+        assert!(
+            locked.support > 0.95 && locked.confidence() > 0.8,
+            "{locked:?}"
+        );
+        // 40 mm sideways: off the edges.
+        let off = Isometry3::new(Vector3::new(0.04, 0.0, 0.6), Vector3::new(0.3, 0.4, 0.1));
+        let wrong = score(&mask_of(&pin, &truth, &points, 2000), &pin, &off, &points);
+        assert!(wrong.confidence() < 0.3, "{wrong:?}");
+        // Dense noise and no object: most points are "inliers", yet no better than chance.
+        let noise = score(&mask_of(&pin, &truth, &[], 300_000), &pin, &truth, &points);
+        assert!(
+            noise.support > 0.8,
+            "the inlier fraction is fooled: {noise:?}"
+        );
+        assert!(noise.confidence() < 0.15, "{noise:?}");
+    }
+
+    #[test]
+    fn a_model_half_out_of_the_image_is_half_visible_and_no_longer_trusted() {
+        let pin = Pinhole::at_level(&Camera::imx636(), 0);
+        let rot = Vector3::new(0.3, 0.4, 0.1);
+        let truth = Isometry3::new(Vector3::new(0.0, 0.0, 0.6), rot);
+        let (points, _) = testing::visible_box_model(&truth);
+        // Shift so the pivot sits on the right image border (u = 1280 at x = (1280 − cx)·z/fx).
+        let x_edge = f64::from(1280.0 - pin.cx) * 0.6 / f64::from(pin.fx);
+        let at_edge = Isometry3::new(Vector3::new(x_edge, 0.0, 0.6), rot);
+        let e = score(
+            &mask_of(&pin, &at_edge, &points, 0),
+            &pin,
+            &at_edge,
+            &points,
+        );
+        assert!((e.visible - 0.5).abs() < 0.15, "{e:?}");
+        assert!(e.support > 0.95, "what is in view is supported: {e:?}");
+        let x_out = x_edge + 0.03;
+        let beyond = Isometry3::new(Vector3::new(x_out, 0.0, 0.6), rot);
+        let e = score(&mask_of(&pin, &beyond, &points, 0), &pin, &beyond, &points);
+        assert!(e.visible < MIN_VISIBLE && e.confidence() == 0.0, "{e:?}");
+    }
+}

@@ -1,0 +1,294 @@
+//! Is the evidence behind a pose fresh? The front-ends count events rather than time, so when the
+//! object's events stop (it is hidden, it left, the light went out) the active set keeps its last
+//! edges indefinitely, and a pose sitting on them looks perfectly supported. What gives it away is
+//! time: an object that was moving in the image must keep firing where its edges are.
+//!
+//! [`Recency`] keeps, per block of sensor pixels, the time of the newest event there. It is written
+//! by the ingest half of the tracker (the caller's thread) and read by the solver thread, so it is a
+//! table of atomics: one writer stores, readers load, no lock and no read-modify-write (event times
+//! only grow, so the newest store is the maximum). [`MotionMemory`] keeps the image speed of the
+//! model the recent poses imply, and remembers it for a while: an estimate parked on stale edges
+//! stops moving at once, but a real object cannot stop instantly, so the speed it *was* moving at is
+//! what tells how fresh its edges must be.
+
+use crate::camera::Camera;
+use crate::image::Roi;
+use crate::se3::Pose;
+use crate::solve::cost::{Pinhole, Rigid32};
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicI64, Ordering};
+
+/// log2 of the side of a recency block (sensor pixels): 8×8 blocks.
+const BLOCK_SHIFT: u32 = 3;
+
+/// Newest event time (µs) per 8×8 block of sensor pixels, shared by ingest (writer) and solver.
+#[derive(Debug)]
+pub struct Recency {
+    blocks_x: usize,
+    blocks_y: usize,
+    /// Rectified width and, for each rectified pixel, the index of the sensor block it is seen in
+    /// (`u32::MAX` where it falls outside the sensor).
+    rect_width: usize,
+    block_of_rect: Vec<u32>,
+    last_us: Vec<AtomicI64>,
+}
+
+impl Recency {
+    /// For `sensor` (raw geometry) and its rectified grid `rect`.
+    pub fn new(sensor: &Camera, rect: &Camera) -> Self {
+        let blocks_x = sensor.width.div_ceil(1 << BLOCK_SHIFT) as usize;
+        let blocks_y = sensor.height.div_ceil(1 << BLOCK_SHIFT) as usize;
+        let block_of_rect = (0..rect.height)
+            .flat_map(|v| (0..rect.width).map(move |u| (u, v)))
+            .map(|(u, v)| {
+                let (x, y) = sensor.distort_pixel(f64::from(u), f64::from(v));
+                let (x, y) = (x.round(), y.round());
+                if x >= 0.0
+                    && y >= 0.0
+                    && x < f64::from(sensor.width)
+                    && y < f64::from(sensor.height)
+                {
+                    ((y as u32 >> BLOCK_SHIFT) as usize * blocks_x
+                        + (x as u32 >> BLOCK_SHIFT) as usize) as u32
+                } else {
+                    u32::MAX
+                }
+            })
+            .collect();
+        Self {
+            blocks_x,
+            blocks_y,
+            rect_width: rect.width as usize,
+            block_of_rect,
+            last_us: (0..blocks_x * blocks_y)
+                .map(|_| AtomicI64::new(i64::MIN))
+                .collect(),
+        }
+    }
+
+    /// Note an event at sensor pixel (x, y) (validated) at `t_us`. Single writer, times
+    /// non-decreasing: a plain store keeps the newest.
+    #[inline]
+    pub fn record(&self, x: u16, y: u16, t_us: i64) {
+        let b = (y as usize >> BLOCK_SHIFT) * self.blocks_x + (x as usize >> BLOCK_SHIFT);
+        self.last_us[b].store(t_us, Ordering::Relaxed);
+    }
+
+    /// Forget every time (the time line restarts).
+    pub fn reset(&self) {
+        for t in &self.last_us {
+            t.store(i64::MIN, Ordering::Relaxed);
+        }
+    }
+
+    fn block_at(&self, u: f32, v: f32) -> Option<usize> {
+        if !(u >= 0.0 && v >= 0.0) {
+            return None;
+        }
+        let (x, y) = (u.round() as usize, v.round() as usize);
+        if x >= self.rect_width {
+            return None;
+        }
+        match *self.block_of_rect.get(y * self.rect_width + x)? {
+            u32::MAX => None,
+            b => Some(b as usize),
+        }
+    }
+
+    /// Newest event time of the block that rectified pixel (u, v) is seen in and its 8 neighbours
+    /// (a pose trailing a fast object by a few pixels still sits next to its fresh edges);
+    /// `i64::MIN` if none or outside the sensor.
+    #[inline]
+    pub fn last_us(&self, u: f32, v: f32) -> i64 {
+        let Some(b) = self.block_at(u, v) else {
+            return i64::MIN;
+        };
+        let (bx, by) = (b % self.blocks_x, b / self.blocks_x);
+        let mut newest = i64::MIN;
+        for y in by.saturating_sub(1)..(by + 2).min(self.blocks_y) {
+            for x in bx.saturating_sub(1)..(bx + 2).min(self.blocks_x) {
+                newest = newest.max(self.last_us[y * self.blocks_x + x].load(Ordering::Relaxed));
+            }
+        }
+        newest
+    }
+
+    /// Clear the pixels of `mask` (row-major over `roi` of the rectified grid) whose block has no
+    /// event since `since_us`: what remains is where things happen now, not what the front-end
+    /// remembers.
+    pub fn keep_fresh(&self, mask: &mut [u8], roi: Roi, since_us: i64) {
+        for (dy, row) in mask.chunks_mut(roi.width as usize).enumerate() {
+            let y = roi.y0 as usize + dy;
+            let blocks = &self.block_of_rect[y * self.rect_width..][..self.rect_width];
+            for (dx, m) in row.iter_mut().enumerate() {
+                if *m == 0 {
+                    continue;
+                }
+                let b = blocks[roi.x0 as usize + dx];
+                if b == u32::MAX || self.last_us[b as usize].load(Ordering::Relaxed) < since_us {
+                    *m = 0;
+                }
+            }
+        }
+    }
+}
+
+/// How long the speed a model was moving at is remembered (µs): about the time a robot arm needs
+/// to bring a target from a fast move to rest.
+pub const SPEED_MEMORY_US: f64 = 300_000.0;
+/// Poses over this span (µs) measure the speed; longer than the tracker's jitter needs.
+const SPEED_WINDOW_US: i64 = 20_000;
+/// Below this image speed (pixels/s) no freshness is demanded: the tracker's own jitter is
+/// about this, and a still object rightly sits on old events.
+pub const STILL_PX_S: f32 = 60.0;
+/// An edge moving at v pixels/s fires within about 1/v s per pixel; allow this many pixels of
+/// motion (plus the floor below) before its support counts as stale.
+const FRESH_PX: f32 = 4.0;
+const FRESH_MIN_US: f32 = 8_000.0;
+
+/// The model's recent image speed, remembered with a linear decay over [`SPEED_MEMORY_US`].
+#[derive(Debug, Clone, Default)]
+pub struct MotionMemory {
+    history: VecDeque<(i64, Pose)>,
+    expected_px_s: f32,
+    expected_at_us: i64,
+}
+
+impl MotionMemory {
+    /// Add the pose published at `t_us` and return the image speed (pixels/s) the model is expected
+    /// to be moving at now: the larger of what the recent poses show and what it showed before,
+    /// decayed.
+    pub fn update(&mut self, t_us: i64, pose: &Pose, pin: &Pinhole, points: &[[f32; 3]]) -> f32 {
+        while self
+            .history
+            .front()
+            .is_some_and(|(t, _)| t_us - t > SPEED_WINDOW_US)
+        {
+            self.history.pop_front();
+        }
+        let decayed = match t_us - self.expected_at_us {
+            dt if dt > 0 => {
+                self.expected_px_s * (1.0 - dt as f64 / SPEED_MEMORY_US).max(0.0) as f32
+            }
+            _ => self.expected_px_s,
+        };
+        let measured = match self.history.front() {
+            Some((t0, p0)) if t_us - t0 >= SPEED_WINDOW_US / 2 => {
+                image_displacement_px(pin, p0, pose, points) / ((t_us - t0) as f32 * 1e-6)
+            }
+            _ => 0.0,
+        };
+        self.history.push_back((t_us, *pose));
+        if measured >= decayed {
+            self.expected_px_s = measured;
+            self.expected_at_us = t_us;
+        }
+        measured.max(decayed)
+    }
+
+    /// Forget the motion (after a re-initialisation, when the old poses no longer mean anything).
+    pub fn reset(&mut self) {
+        *self = Self::default();
+    }
+}
+
+/// How old (µs) the newest event near a supported point may be at `expected_px_s`; None when the
+/// model is taken to be still and old events are as good as new.
+pub fn max_age_us(expected_px_s: f32) -> Option<i64> {
+    (expected_px_s >= STILL_PX_S).then(|| (FRESH_MIN_US + FRESH_PX / expected_px_s * 1e6) as i64)
+}
+
+/// Mean image displacement (pixels) of a few model points between two poses.
+fn image_displacement_px(pin: &Pinhole, a: &Pose, b: &Pose, points: &[[f32; 3]]) -> f32 {
+    let (ra, rb) = (Rigid32::from_pose(a), Rigid32::from_pose(b));
+    let stride = (points.len() / 32).max(1);
+    let (mut sum, mut n) = (0.0f32, 0usize);
+    for &x in points.iter().step_by(stride) {
+        if let (Some(p), Some(q)) = (pin.project(ra.apply(x)), pin.project(rb.apply(x))) {
+            sum += ((p.0 - q.0).powi(2) + (p.1 - q.1).powi(2)).sqrt();
+            n += 1;
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        sum / n as f32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Isometry3, Vector3};
+
+    #[test]
+    fn recency_keeps_the_newest_time_per_block_across_threads() {
+        // Without distortion, so that rectified pixels are sensor pixels.
+        let cam = Camera::imx636().rectified();
+        let r = std::sync::Arc::new(Recency::new(&cam, &cam));
+        let writer = {
+            let r = std::sync::Arc::clone(&r);
+            std::thread::spawn(move || {
+                r.record(20, 10, 300);
+                r.record(22, 12, 500);
+            })
+        };
+        writer.join().unwrap();
+        assert_eq!(r.last_us(17.0, 9.5), 500);
+        assert_eq!(r.last_us(28.0, 9.5), 500, "a neighbouring block counts");
+        assert_eq!(r.last_us(40.0, 9.5), i64::MIN);
+        assert_eq!(r.last_us(-1.0, 9.5), i64::MIN);
+        assert_eq!(r.last_us(2000.0, 9.5), i64::MIN);
+        let roi = Roi {
+            x0: 16,
+            y0: 8,
+            width: 24,
+            height: 2,
+        };
+        let mut mask = vec![1u8; 48];
+        r.keep_fresh(&mut mask, roi, 400);
+        assert_eq!(mask[..8], [1; 8], "the block that fired at 500 µs stays");
+        assert_eq!(mask[8..24], [0; 16], "blocks without events are cleared");
+        r.reset();
+        assert_eq!(r.last_us(17.0, 9.5), i64::MIN);
+        // With distortion, a rectified pixel reads the block of the sensor pixel it is seen at.
+        let raw = Camera::imx636();
+        let r = Recency::new(&raw, &raw.rectified());
+        let (x, y) = raw.distort_pixel(100.0, 80.0);
+        r.record(x.round() as u16, y.round() as u16, 7);
+        assert!(
+            (x - 100.0).abs() > 24.0,
+            "the test needs a pixel distortion moves"
+        );
+        assert_eq!(r.last_us(100.0, 80.0), 7);
+    }
+
+    #[test]
+    fn a_model_that_stops_dead_is_still_expected_to_move() {
+        let pin = Pinhole::at_level(&Camera::imx636(), 0);
+        let points: Vec<[f32; 3]> = (0..64).map(|i| [0.001 * i as f32, 0.05, 0.0]).collect();
+        let mut m = MotionMemory::default();
+        let at = |x: f64| Isometry3::new(Vector3::new(x, 0.0, 0.6), Vector3::zeros());
+        // 0.2 m/s at 0.6 m: fx · 0.2 / 0.6 px/s.
+        let expect = pin.fx * 0.2 / 0.6;
+        let mut speed = 0.0;
+        for k in 0..50 {
+            speed = m.update(k * 1000, &at(0.2 * k as f64 * 1e-3), &pin, &points);
+        }
+        assert!(
+            (speed - expect).abs() < 0.03 * expect,
+            "{speed} vs {expect}"
+        );
+        // Parked from 49 ms on: after 30 ms the memory still expects about 90 % of that speed.
+        for k in 50..80 {
+            speed = m.update(k * 1000, &at(0.2 * 49e-3), &pin, &points);
+        }
+        assert!((speed - 0.9 * expect).abs() < 0.04 * expect, "{speed}");
+        assert!(max_age_us(speed).unwrap() < 25_000);
+        // And forgets it after the memory span.
+        for k in 80..400 {
+            speed = m.update(k * 1000, &at(0.2 * 49e-3), &pin, &points);
+        }
+        assert!(speed < STILL_PX_S && max_age_us(speed).is_none(), "{speed}");
+    }
+}
