@@ -1,7 +1,7 @@
 """``evservo bench --suite robustness``: does the closed loop know when the pose is wrong (issue 12)?
 
 Each scenario is a closed-loop episode (:func:`evservo.sim.episode.run_episode`, our controller, the
-``edges`` event source unless ``events="render"``) that runs through its losses
+``edges`` event source unless ``events="render"``, the tracker's re-acquisition on) that runs through its losses
 (``end_on_loss=False``) and scores the tracker's ``lost`` flag against the truth
 (:mod:`evservo.runtime.loss`), for each of EDFT⁺, EDOPTS and EDFT:
 
@@ -44,7 +44,7 @@ def scenarios(quick: bool = False) -> dict[str, EpisodeConfig]:
     """The suite's scenarios by name (edft+, edges source). Disturbances start at 0.6 s, once the
     target's 0.5 s start ramp is over, and episodes run 0.6 s past them (the issue's re-lock bound is
     0.3 s). ``quick`` shortens the long occlusion to 1 s."""
-    base = EpisodeConfig(speed_mps=0.3, feedforward=True, end_on_loss=False)
+    base = EpisodeConfig(speed_mps=0.3, feedforward=True, end_on_loss=False, reacquire=True)
     t0, long_occlusion = 0.6, 1.0 if quick else 2.0
     return {
         "occlusion-0.5s": replace(base, occlusions=((t0, t0 + 0.5),), duration_s=t0 + 1.1),

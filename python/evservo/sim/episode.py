@@ -107,6 +107,8 @@ class EpisodeConfig:
     object; ``noise_s`` a spell of pure noise at ``noise_rate_hz`` (events/s) instead of the scene;
     ``model`` the tracker's model when it is not the object's (a wrong model); ``start_lost`` the
     tracker starts without a pose and searches (the desired pose is captured once locked);
+    ``reacquire`` the tracker renders its viewpoint template bank at start-up so that it finds the
+    object again by itself after a loss (always on with ``start_lost``);
     ``end_on_loss`` False runs the episode to its end through losses, scoring the tracker's ``lost``
     flag (``summary["loss"]``) instead of ending at the first estimate off the truth.
     """
@@ -146,6 +148,7 @@ class EpisodeConfig:
     noise_rate_hz: float = 1e7
     model: str | None = None
     start_lost: bool = False
+    reacquire: bool = False
     end_on_loss: bool = True
 
     def __post_init__(self) -> None:
@@ -380,7 +383,7 @@ def run_episode(
     T_w_o0 = scene.T_w_o()
     camera = _evcore.Camera.imx636()
     core = Tracker(camera, cfg.model or cfg.object, None if cfg.start_lost else T_c_o0, solver=cfg.tracker,
-                   frontend=cfg.frontend, seed=cfg.seed)  # fmt: skip
+                   frontend=cfg.frontend, seed=cfg.seed, reacquire=cfg.reacquire or cfg.start_lost)  # fmt: skip
     arms = ArmMeshes(scene) if cfg.render_arms else None
     source = _primed_source(cfg, camera, T_c_o0, core, arms)
     tracker = ClockedTracker(core, _cost_model(cfg))
