@@ -109,7 +109,8 @@ def _run_real(args: argparse.Namespace) -> int:
             cfg = replace(cfg, search=True)
         if desired is None and rig is not None:
             desired = rig.desired_pose
-        tracker = Tracker(camera, model, init, solver=args.tracker)
+        # Re-acquisition on: after a loss the loop holds still until the tracker has found the object again.
+        tracker = Tracker(camera, model, init, solver=args.tracker, reacquire=True)
         arm = open_arm(spec, rig, args.dry_run, args.realtime or "enforce")
         meta = {
             "robot": args.robot, "camera": args.camera, "model": str(model), "tracker": args.tracker,
