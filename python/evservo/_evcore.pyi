@@ -11,6 +11,8 @@ __version__: str
 __all__ = [
     "EVENT_CD",
     "FRONTENDS",
+    "LOST_BELOW",
+    "RELOCK_ABOVE",
     "SOLVERS",
     "Camera",
     "DecodeError",
@@ -46,6 +48,8 @@ _Events: TypeAlias = npt.NDArray[np.void]
 #: The solver and front-end names ``Tracker`` accepts: the only spellings.
 SOLVERS: list[str]
 FRONTENDS: list[str]
+LOST_BELOW: float
+RELOCK_ABOVE: float
 
 @final
 class Camera:
@@ -109,6 +113,8 @@ class Tracker:
         depth_range_m: tuple[float, float] = ...,  # (0.3, 1.5)
         n_points: int = 1000,
         seed: int = 0,
+        lost_below: float = ...,
+        relock_above: float = ...,
     ) -> Tracker: ...
     def update(self, events: _Events) -> Estimate: ...
     def ingest(self, events: _Events) -> None: ...
@@ -125,6 +131,7 @@ class Tracker:
     def solver_thread_id(self) -> int | None: ...
     def reset_pose(self, T_c_o: _F64) -> None: ...
     def reset_events(self) -> None: ...
+    def evidence(self) -> dict[str, float]: ...
     def stats(self) -> dict[str, float]: ...
     def projected_points(self) -> _F32: ...
     def field(self) -> tuple[_F32, tuple[int, int]]: ...

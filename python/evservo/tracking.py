@@ -17,7 +17,8 @@ import numpy as np
 from evservo import _evcore
 from evservo.events import as_event_cd
 from evservo.geometry import as_pose
-from evservo.models import Symmetry, builtin_symmetries, load_object, to_core_mesh
+from evservo.models import BUILTIN_OBJECTS, Symmetry, builtin_symmetries, load_object, to_core_mesh
+from evservo.models import symmetries as find_symmetries
 
 #: The solver and front-end names the core accepts (parsed in Rust only; these lists come from it).
 SOLVERS: tuple[str, ...] = tuple(_evcore.SOLVERS)
@@ -72,6 +73,21 @@ def field_scale(extent_px: float) -> tuple[int, float]:
     return levels, float(np.clip(extent_px / 8.0, 4.0, 10.0))
 
 
+class AmbiguousModelWarning(UserWarning):
+    """The model has a continuous rotation symmetry (a sphere, a plain cylinder): part of its
+    attitude cannot be observed, and the tracker's full pose is only as good as its prior there."""
+
+
+def _default_symmetries(mesh: object, camera: _evcore.Camera) -> list[Symmetry]:
+    """A built-in's known symmetries; any other mesh's found by rendering it (a core mesh,
+    without its source shape, is taken to have none)."""
+    if isinstance(mesh, str) and mesh in BUILTIN_OBJECTS:
+        return builtin_symmetries(mesh)
+    if isinstance(mesh, _evcore.Mesh):
+        return []
+    return find_symmetries(mesh, camera)  # type: ignore[arg-type]
+
+
 class Tracker:
     """Event-based 6-DoF object tracker (EDFT⁺ and its two baselines).
 
@@ -86,7 +102,8 @@ class Tracker:
         tau_px, levels: truncation of the distance field (full-resolution pixels) and pyramid depth;
             default: from the object's size in the image (:func:`field_scale`).
         symmetries: the object's rotation symmetries (:func:`evservo.models.symmetries`); default:
-            known ones of a built-in object, none otherwise. Rotation about a continuous one is
+            known ones of a built-in object, found by rendering for any other mesh (a second or
+            two). Rotation about a continuous one is
             unobservable and held at the initial pose's (:attr:`unobservable_axes`); discrete ones
             are ambiguities the tracker cannot resolve (:attr:`ambiguities`).
         ingest_core_share: while running, ``push`` thins the stream so that ingest uses at most this
@@ -99,6 +116,9 @@ class Tracker:
             finds the object again by itself while lost (one global search per update) and takes S*
             from the view nearest to the current attitude. It costs a few hundred renders at
             construction (seconds). Default: only when ``T_c_o`` is None.
+        lost_below, relock_above: the estimate turns ``lost`` when its confidence falls below
+            ``lost_below`` and is trusted again from ``relock_above`` on (default: the core's,
+            calibrated in benches/RESULTS.md "Confidence and loss").
 
     Every estimate carries ``confidence`` (0–1: how much better than chance the events support the
     pose) and ``lost`` (the pose is not to be trusted: not yet confirmed by an update, confidence
@@ -126,6 +146,8 @@ class Tracker:
         reacquire: bool | None = None,
         view_spacing_deg: float = 15.0,
         depth_range_m: tuple[float, float] = (0.3, 1.5),
+        lost_below: float | None = None,
+        relock_above: float | None = None,
     ) -> None:
         T = None if T_c_o is None else as_pose(T_c_o, "T_c_o")
         if reacquire is None:
@@ -143,8 +165,16 @@ class Tracker:
         levels = auto_levels if levels is None else levels
         tau_px = auto_tau if tau_px is None else tau_px
         if symmetries is None:
-            symmetries = builtin_symmetries(mesh) if isinstance(mesh, str) else []
+            symmetries = _default_symmetries(mesh, camera)
         self.symmetries = list(symmetries)
+        if self.unobservable_axes:
+            warnings.warn(
+                "the model's attitude is ambiguous: rotation about the object-frame axes "
+                f"{[tuple(round(a, 3) for a in ax) for ax in self.unobservable_axes]} is unobservable from its "
+                "edges; the tracker holds it at the initial pose's (Tracker.unobservable_axes)",
+                AmbiguousModelWarning,
+                stacklevel=2,
+            )
         held = [(*s.axis_o, *s.centre_o) for s in self.symmetries if s.continuous]
         self._core = _evcore.Tracker(
             camera, self.points_o, T, solver=solver, frontend=frontend, n_search=n_search, tau_px=tau_px,
@@ -152,6 +182,7 @@ class Tracker:
             anti_flicker_hz=_frequencies(anti_flicker_hz), held_axes=np.array(held, float).reshape(-1, 6),
             mesh=core_mesh if reacquire else None, view_spacing_deg=view_spacing_deg,
             depth_range_m=depth_range_m, n_points=n_points, seed=seed,
+            **{k: v for k, v in (("lost_below", lost_below), ("relock_above", relock_above)) if v is not None},
         )  # fmt: skip
 
     @property
@@ -254,6 +285,14 @@ class Tracker:
         """Forget every event and the time line (running or not); the pose stays. Time may then start
         anew, e.g. after the camera restarted its clock or a batch with corrupt times was refused."""
         self._core.reset_events()
+
+    def evidence(self) -> dict[str, float]:
+        """The parts of the last tracked pose's confidence (synchronous only; fractions 0–1):
+        ``support`` (model points near an active pixel, and near a recent event while the model
+        moves), ``support_any`` (without the freshness test), ``chance`` (pixels around the model
+        near an active pixel), ``support_tight`` and ``chance_tight`` (the same within 1 px) and
+        ``visible`` (model points in the image)."""
+        return self._core.evidence()
 
     def stats(self) -> dict[str, float]:
         """Live counters: ``lm_steps``, ``search_steps``, ``lm_seconds``, ``search_seconds``,

@@ -7,9 +7,9 @@
 //! modelled: it is the fraction of the region around the projected model whose field value passes
 //! the same inlier test, i.e. the probability that a point dropped anywhere there is an inlier.
 //!
-//! confidence = support − chance, clamped to [0, 1], where support is the supported fraction of
-//! the model points in the image; with less than half the model in the image the object counts
-//! as gone. Support may also be required to be fresh (see [`crate::freshness`]). Candidates of a
+//! confidence = the mean over two inlier distances (2 px and 1 px) of (support − chance) /
+//! (1 − chance), clamped to [0, 1], where support is the supported fraction of the model points
+//! in the image; with less than half the model in the image the object counts as gone. Support may also be required to be fresh (see [`crate::freshness`]). Candidates of a
 //! global search also have to explain the event mass around them
 //! ([`Evidence::acquisition_confidence`]).
 
@@ -24,41 +24,69 @@ pub struct Evidence {
     /// Fraction of the model points in the image that lie within the inlier distance of an active
     /// pixel (and, when freshness is demanded, of a recent event).
     pub support: f32,
+    /// The same without the freshness requirement.
+    pub support_any: f32,
     /// Fraction of the pixels of the region around the model within the inlier distance of an
     /// active pixel: the support a random placement would get.
     pub chance: f32,
+    /// `support` and `chance` at the tight distance [`TIGHT_PX`].
+    pub support_tight: f32,
+    pub chance_tight: f32,
     /// Fraction of the model points that project inside the image.
     pub visible: f32,
     /// Fraction of the active pixels of the region that lie near the projected model (within
     /// about [`EXPLAIN_CELL_PX`] to 2× that): how much of what fires there the pose accounts for.
     /// A pose fitted to part of the object's edges (a smaller, farther copy sitting on one
-    /// corner) has high support but leaves most of the events around it unexplained.
+    /// corner) has high support but leaves most of the events around it unexplained. Only
+    /// measured when the query asks for it (global search), else 0.
     pub explained: f32,
 }
+
+/// Above this chance level a support test carries no evidence: nearly every placement passes it,
+/// and the share of the little headroom left would turn sampling noise into certainty.
+pub const MAX_CHANCE: f32 = 0.9;
+
+/// Support `s` in excess of chance `c` as a share of the headroom 1 − c, in [0, 1].
+fn excess(s: f32, c: f32) -> f32 {
+    if c >= MAX_CHANCE {
+        return 0.0;
+    }
+    ((s - c) / (1.0 - c)).clamp(0.0, 1.0)
+}
+
+/// Field value (full-resolution pixels) of the tight inlier test: f(1 px) = ½.
+pub const TIGHT_PX: f32 = 0.5;
 
 /// Below this visible fraction the object counts as having left the view: too little of it is
 /// left to pin six degrees of freedom, whatever the support.
 pub const MIN_VISIBLE: f32 = 0.5;
 
 impl Evidence {
-    /// Support in excess of chance (0: no better than random, 1: every point supported in a region
-    /// otherwise empty); 0 once less than [`MIN_VISIBLE`] of the model is in the image. Not
-    /// normalised by the headroom 1 − chance: in events dense enough that chance nears 1 there is
-    /// no evidence left, and the ratio would turn its noise into certainty.
+    /// Support in excess of chance, as a share of what chance leaves to gain, averaged over the
+    /// two inlier distances (0: no better than random, 1: every point supported); 0 once less than
+    /// [`MIN_VISIBLE`] of the model is in the image. The share, not the plain difference: with the
+    /// camera moving, background clutter raises the chance level around a locked model to 0.5–0.6
+    /// and the difference of a right pose falls to where wrong ones lie. Two distances: the wide
+    /// one tolerates the pixel or two a tracked pose trails the events by, the tight one is what
+    /// clutter and noise rarely pass by chance.
     pub fn confidence(&self) -> f32 {
         if self.visible < MIN_VISIBLE {
             return 0.0;
         }
-        (self.support - self.chance).clamp(0.0, 1.0)
+        0.5 * (excess(self.support, self.chance) + excess(self.support_tight, self.chance_tight))
     }
 
-    /// The stricter test for a pose found by a global search: [`Self::confidence`] scaled down when
-    /// the pose accounts for less than [`EXPLAINED_ENOUGH`] of the event mass around it. A sweep
-    /// over thousands of templates finds partial fits (a smaller, farther view sitting on one
-    /// corner of the object's edges) that a continuously tracked pose never jumps to. Not used
-    /// while tracking: with the camera moving, background clutter rightly stays unexplained.
+    /// The stricter test for a pose found by a global search: support in excess of chance (the
+    /// plain difference, which a sparse full-image field makes hard to earn), scaled down when the
+    /// pose accounts for less than [`EXPLAINED_ENOUGH`] of the event mass around it. A sweep over
+    /// thousands of templates finds partial fits (a smaller, farther view sitting on one corner of
+    /// the object's edges) that a continuously tracked pose never jumps to. Not used while
+    /// tracking: with the camera moving, background clutter rightly stays unexplained.
     pub fn acquisition_confidence(&self) -> f32 {
-        self.confidence() * (self.explained / EXPLAINED_ENOUGH).min(1.0)
+        if self.visible < MIN_VISIBLE {
+            return 0.0;
+        }
+        (self.support - self.chance).clamp(0.0, 1.0) * (self.explained / EXPLAINED_ENOUGH).min(1.0)
     }
 }
 
@@ -74,6 +102,8 @@ pub struct Query<'a> {
     pub image: (u32, u32),
     /// When set, a supported point also needs an event in its block at or after this time (µs).
     pub fresh_since: Option<(&'a Recency, i64)>,
+    /// Also measure [`Evidence::explained`] (a pass over the region; for global-search candidates).
+    pub explain: bool,
 }
 
 /// Grid stride (pixels) of the chance estimate: the fraction of a region's pixels near an event
@@ -88,7 +118,8 @@ pub fn evidence(
     points: &[[f32; 3]],
     q: &Query<'_>,
 ) -> Evidence {
-    let (mut supported, mut visible) = (0usize, 0usize);
+    let (mut supported, mut supported_any, mut tight, mut visible) =
+        (0usize, 0usize, 0usize, 0usize);
     let (w, h) = (q.image.0 as f32, q.image.1 as f32);
     for &x in points {
         let Some((u, v)) = pin.project(pose.apply(x)) else {
@@ -98,16 +129,31 @@ pub fn evidence(
             continue;
         }
         visible += 1;
+        let f = level.sample(u, v);
+        if f > q.inlier_px {
+            continue;
+        }
+        supported_any += 1;
         let fresh = q
             .fresh_since
             .is_none_or(|(recency, since)| recency.last_us(u, v) >= since);
-        supported += usize::from(fresh && level.sample(u, v) <= q.inlier_px);
+        supported += usize::from(fresh);
+        tight += usize::from(fresh && f <= TIGHT_PX);
     }
+    let n = visible.max(1) as f32;
+    let (chance, chance_tight) = chance_level(level, q.region, q.inlier_px);
     Evidence {
-        support: supported as f32 / visible.max(1) as f32,
-        chance: chance_level(level, q.region, q.inlier_px),
+        support: supported as f32 / n,
+        support_any: supported_any as f32 / n,
+        chance,
+        support_tight: tight as f32 / n,
+        chance_tight,
         visible: visible as f32 / points.len().max(1) as f32,
-        explained: explained_fraction(level, pin, pose, points, q.region),
+        explained: if q.explain {
+            explained_fraction(level, pin, pose, points, q.region)
+        } else {
+            0.0
+        },
     }
 }
 
@@ -177,9 +223,10 @@ fn explained_fraction(
     }
 }
 
-/// Fraction of the pixels of `region` ∩ the level's region whose field value is ≤ `inlier_px`;
-/// pixels of `region` outside the built level count as far (no event there is known).
-fn chance_level(level: &FieldLevel, region: Roi, inlier_px: f32) -> f32 {
+/// Fractions of the pixels of `region` ∩ the level's region whose field value is ≤ `inlier_px`
+/// and ≤ [`TIGHT_PX`]; pixels of `region` outside the built level count as far (no event there is
+/// known).
+fn chance_level(level: &FieldLevel, region: Roi, inlier_px: f32) -> (f32, f32) {
     let lr = level.roi;
     let x0 = region.x0.max(lr.x0);
     let y0 = region.y0.max(lr.y0);
@@ -188,19 +235,22 @@ fn chance_level(level: &FieldLevel, region: Roi, inlier_px: f32) -> f32 {
     let total = (region.width as usize).div_ceil(CHANCE_STRIDE)
         * (region.height as usize).div_ceil(CHANCE_STRIDE);
     if total == 0 || x0 >= x1 || y0 >= y1 {
-        return 0.0;
+        return (0.0, 0.0);
     }
     let w = lr.width as usize;
-    let mut near = 0usize;
+    let (mut near, mut tight) = (0usize, 0usize);
     for y in (y0..y1).step_by(CHANCE_STRIDE) {
         let row = &level.value[(y - lr.y0) as usize * w..][..w];
-        near += row[(x0 - lr.x0) as usize..(x1 - lr.x0) as usize]
+        for &f in row[(x0 - lr.x0) as usize..(x1 - lr.x0) as usize]
             .iter()
             .step_by(CHANCE_STRIDE)
-            .filter(|&&f| f <= inlier_px)
-            .count();
+        {
+            near += usize::from(f <= inlier_px);
+            tight += usize::from(f <= TIGHT_PX);
+        }
     }
-    (near as f32 / total as f32).min(1.0)
+    let frac = |k: usize| (k as f32 / total as f32).min(1.0);
+    (frac(near), frac(tight))
 }
 
 #[cfg(test)]
@@ -247,6 +297,7 @@ mod tests {
             region,
             image: (1280, 720),
             fresh_since: None,
+            explain: false,
         };
         evidence(field.level(0), pin, &rig, points, &q)
     }

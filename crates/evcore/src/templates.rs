@@ -424,6 +424,7 @@ mod tests {
                 region: region.unwrap_or(full),
                 image: (cam.width, cam.height),
                 fresh_since: None,
+                explain: true,
             };
             evidence(field.level(0), &pin, &rig, pts, &q).confidence()
         };

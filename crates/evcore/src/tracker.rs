@@ -45,9 +45,11 @@ use std::time::{Duration, Instant};
 
 /// Default confidence below which a pose is flagged lost (chosen from the ROC in
 /// benches/RESULTS.md, "Confidence and loss").
-pub const LOST_BELOW: f32 = 0.3;
+pub const LOST_BELOW: f32 = 0.25;
+/// Below this confidence a pose is flagged lost at once, without waiting for `lost_hold_us`.
+pub const LOST_AT_ONCE_BELOW: f32 = 0.1;
 /// Default confidence a lost tracker needs before its pose is trusted again.
-pub const RELOCK_ABOVE: f32 = 0.45;
+pub const RELOCK_ABOVE: f32 = 0.4;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrackerConfig {
@@ -67,6 +69,8 @@ pub struct TrackerConfig {
     pub inlier_px: f32,
     /// The estimate turns lost when its confidence falls below this ...
     pub lost_below: f32,
+    /// ... for this long (event time, µs; see `Solver::judge`) ...
+    pub lost_hold_us: i64,
     /// ... and is trusted again only once it reaches this (hysteresis against flicker).
     pub relock_above: f32,
     /// While lost, the global search only sees pixels whose block fired within this time (µs).
@@ -100,6 +104,7 @@ impl Default for TrackerConfig {
             inlier_px: 2.0,
             lost_below: LOST_BELOW,
             relock_above: RELOCK_ABOVE,
+            lost_hold_us: 20_000,
             search_fresh_us: 50_000,
             reacquire_above: 0.7,
             max_jump: 0.25,
@@ -191,6 +196,10 @@ pub struct TrackerStats {
 /// Model points closer than this to the border of what the sensor sees leave the cost (full-res
 /// pixels): their field is cut off on one side.
 const VIEW_MARGIN_PX: f64 = 2.0;
+
+/// How long (event time, µs) a given pose may read lost before the tracker searches for the
+/// object instead (with a template bank): a start pose that never locks is taken to be wrong.
+const UNCONFIRMED_US: i64 = 100_000;
 
 /// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
 const MIN_VISIBLE_POINTS: usize = 6;
@@ -585,10 +594,16 @@ pub struct Solver {
     /// Lost for real (confidence fell, or no pose was given): the next steps search globally when
     /// there is a template bank. Not set by an unconfirmed [`Solver::reset_pose`].
     searching: bool,
+    /// Event time (µs) of the first update of a trusted pose below `lost_below`.
+    low_since_us: Option<i64>,
+    /// Event time (µs) of the first update that did not confirm a given pose.
+    unconfirmed_since_us: Option<i64>,
     /// Viewpoint templates for re-acquisition and S* swaps (None: neither).
     bank: Option<Arc<TemplateBank>>,
     /// Camera direction (object frame) of the view the current S* was rendered from.
     points_dir_o: Option<Vector3<f64>>,
+    /// What the events said at the last tracked pose (diagnostics).
+    evidence: Evidence,
 }
 
 fn check_pose(pose: &Pose) -> Result<()> {
@@ -651,8 +666,11 @@ impl Solver {
             recency,
             motion: MotionMemory::default(),
             searching: false,
+            unconfirmed_since_us: None,
+            low_since_us: None,
             bank: None,
             points_dir_o: None,
+            evidence: Evidence::default(),
         };
         solver.publish();
         Ok(solver)
@@ -681,6 +699,7 @@ impl Solver {
         // is tracked from, not searched for.
         self.last.lost = true;
         self.searching = false;
+        self.unconfirmed_since_us = None;
         self.motion.reset();
         self.schedule.restart();
         self.publish();
@@ -776,13 +795,17 @@ impl Solver {
         } else {
             0.0
         };
-        let lost = if self.last.lost {
-            confidence < self.config.relock_above
+        let lost = self.judge(t_us, confidence);
+        // A pose that fell is searched for at once; one still waiting for its first confirmation
+        // (a given start pose) gets `UNCONFIRMED_US` of event time to lock before the search.
+        if lost && !self.last.lost {
+            self.searching = true;
+        } else if lost {
+            let since = *self.unconfirmed_since_us.get_or_insert(t_us);
+            self.searching |= t_us - since >= UNCONFIRMED_US;
         } else {
-            confidence < self.config.lost_below
-        };
-        // A pose that fell (not one still waiting for its first confirmation) is searched for.
-        self.searching = self.searching || (lost && !self.last.lost);
+            self.unconfirmed_since_us = None;
+        }
         if !lost {
             self.searching = false;
             self.follow_view(&accepted);
@@ -825,19 +848,47 @@ impl Solver {
         self.publish();
     }
 
+    /// Whether the pose published at `t_us` with `confidence` is lost. A trusted pose turns lost
+    /// when its confidence stays below `lost_below` for `lost_hold_us` of event time, or at once
+    /// below [`LOST_AT_ONCE_BELOW`]: a pose trailing a fast move by a few pixels dips for an update
+    /// or two and recovers, one that slid off the object does not. A lost one is trusted again
+    /// from `relock_above` on.
+    fn judge(&mut self, t_us: i64, confidence: f32) -> bool {
+        if self.last.lost {
+            return confidence < self.config.relock_above;
+        }
+        if confidence >= self.config.lost_below {
+            self.low_since_us = None;
+            return false;
+        }
+        let since = *self.low_since_us.get_or_insert(t_us);
+        let lost = confidence < LOST_AT_ONCE_BELOW || t_us - since >= self.config.lost_hold_us;
+        if lost {
+            self.low_since_us = None;
+        }
+        lost
+    }
+
     /// The confidence of `pose` on the last built full-resolution field at `t_us`, its support
     /// required to be fresh while the model has been moving in the image.
     fn confidence_at(&mut self, t_us: i64, pose: &Pose) -> f32 {
         let speed = self.motion.update(t_us, pose, &self.pins[0], &self.points);
         let fresh = max_age_us(speed).map(|age| t_us - age);
-        self.evidence_of(pose, &self.points, fresh).confidence()
+        self.evidence = self.evidence_of(pose, &self.points, fresh, false);
+        self.evidence.confidence()
     }
 
     /// The evidence for `pose` with `points` on the last built full-resolution field, its chance
     /// level taken over the search region around the projected model (the same region for LM and
     /// search steps, so both score alike); `fresh_since`: supported points also need an event in
     /// their block since then (µs).
-    fn evidence_of(&self, pose: &Pose, points: &[[f32; 3]], fresh_since: Option<i64>) -> Evidence {
+    fn evidence_of(
+        &self,
+        pose: &Pose,
+        points: &[[f32; 3]],
+        fresh_since: Option<i64>,
+        explain: bool,
+    ) -> Evidence {
         let rig = Rigid32::from_pose(pose);
         let pin = self.pins[0];
         let uv = points
@@ -857,6 +908,7 @@ impl Solver {
             region,
             image: (self.rect.width, self.rect.height),
             fresh_since: fresh_since.map(|t| (&*self.recency, t)),
+            explain,
         };
         evidence(self.field.level(0), &pin, &rig, points, &query)
     }
@@ -897,7 +949,7 @@ impl Solver {
                     continue;
                 }
                 let c = self
-                    .evidence_of(&refined, points, None)
+                    .evidence_of(&refined, points, None, true)
                     .acquisition_confidence();
                 if best.as_ref().is_none_or(|b| c > b.0) {
                     best = Some((c, refined, view));
@@ -1036,6 +1088,16 @@ impl TrackerCore {
         Ok(core)
     }
 
+    /// Give up the current pose: the estimate reads lost and, with a template bank, the next
+    /// updates search the whole image (e.g. when the caller knows the object was moved).
+    pub fn start_search(&mut self) {
+        let s = &mut self.solver;
+        s.last.lost = true;
+        s.last.confidence = 0.0;
+        s.searching = true;
+        s.publish();
+    }
+
     /// Re-acquire with `bank` while lost, and take S* from its nearest view when the object turns
     /// away from where the current S* was rendered.
     pub fn set_templates(&mut self, bank: TemplateBank) {
@@ -1059,6 +1121,11 @@ impl TrackerCore {
 
     pub fn latest(&self) -> Estimate {
         self.solver.last
+    }
+
+    /// What the events said at the last tracked pose: the parts of its confidence.
+    pub fn evidence(&self) -> Evidence {
+        self.solver.evidence
     }
 
     pub fn stats(&self) -> TrackerStats {

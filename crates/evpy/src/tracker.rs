@@ -142,15 +142,16 @@ impl PyTracker {
     /// solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6,
     /// roi_margin_px=48.0, ingest_core_share=0.5, max_ingest_rate=None, anti_flicker_hz=[],
     /// held_axes=None, mesh=None, view_spacing_deg=15.0, depth_range_m=(0.3, 1.5), n_points=1000,
-    /// seed=0): held_axes (K, 6) are continuous symmetry axes of the object (unit axis, then a
+    /// seed=0, lost_below=0.3, relock_above=0.45): held_axes (K, 6) are continuous symmetry axes of the object (unit axis, then a
     /// point on it; object frame, metres) whose rotation every update keeps at the prior.
     ///
     /// With `mesh`, a bank of viewpoint templates (S* of `n_points` every `view_spacing_deg` over
     /// the viewing sphere, searched over `depth_range_m`) lets the tracker find the object again by
     /// itself while lost and keeps S* in step with the attitude. Without `T_c_o` and `points_o` the
-    /// tracker starts lost and searches; that needs `mesh`.
+    /// tracker starts lost and searches; that needs `mesh`. The estimate turns lost when its
+    /// confidence falls below `lost_below` and is trusted again from `relock_above` on.
     #[new]
-    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None, anti_flicker_hz=Vec::new(), held_axes=None, mesh=None, view_spacing_deg=15.0, depth_range_m=(0.3, 1.5), n_points=1000, seed=0))]
+    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None, anti_flicker_hz=Vec::new(), held_axes=None, mesh=None, view_spacing_deg=15.0, depth_range_m=(0.3, 1.5), n_points=1000, seed=0, lost_below=evcore::tracker::LOST_BELOW, relock_above=evcore::tracker::RELOCK_ABOVE))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -173,6 +174,8 @@ impl PyTracker {
         depth_range_m: (f64, f64),
         n_points: usize,
         seed: u64,
+        lost_below: f32,
+        relock_above: f32,
     ) -> PyResult<Self> {
         let pose = T_c_o.map(|m| pose_arg(&m)).transpose()?;
         let points = points_o.map(|p| points_arg(&p)).transpose()?;
@@ -211,6 +214,8 @@ impl PyTracker {
             roi_margin_px,
             ingest_limit,
             anti_flicker_hz,
+            lost_below,
+            relock_above,
             ..TrackerConfig::default()
         };
         let bank_params = BankParams {
@@ -383,6 +388,20 @@ impl PyTracker {
         })
     }
 
+    /// The parts of the last tracked pose's confidence (a dict of fractions; synchronous use):
+    /// support (fresh), support_any, chance, support_tight, chance_tight, visible.
+    fn evidence<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+        let e = self.with_core(py, |core| core.evidence())?;
+        let d = pyo3::types::PyDict::new(py);
+        d.set_item("support", e.support)?;
+        d.set_item("support_any", e.support_any)?;
+        d.set_item("chance", e.chance)?;
+        d.set_item("support_tight", e.support_tight)?;
+        d.set_item("chance_tight", e.chance_tight)?;
+        d.set_item("visible", e.visible)?;
+        Ok(d)
+    }
+
     /// Live counters (a dict): step counts and seconds per kind, events offered / ingested /
     /// dropped (thinned under overload), rejected jumps. Lock-free.
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
@@ -478,5 +497,8 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyEstimate>()?;
     // The names the Tracker accepts, for Python's command-line choices: parsed here only.
     m.add("SOLVERS", SolverMode::NAMES)?;
-    m.add("FRONTENDS", FrontEnd::NAMES)
+    m.add("FRONTENDS", FrontEnd::NAMES)?;
+    // The default confidence thresholds of `lost`, for the bench's ROC.
+    m.add("LOST_BELOW", evcore::tracker::LOST_BELOW)?;
+    m.add("RELOCK_ABOVE", evcore::tracker::RELOCK_ABOVE)
 }

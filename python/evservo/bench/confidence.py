@@ -16,11 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from evservo import _evcore
 from evservo.sim.scenarios import ScenarioRun, run_scenario, scenarios, score
 
 SOLVERS = ("edft+", "edopts", "edft")
-#: The tracker's default ``lost_below`` (evcore's tracker.rs ``LOST_BELOW``).
-LOST_BELOW = 0.3
+#: The tracker's default ``lost_below``.
+LOST_BELOW = _evcore.LOST_BELOW
 
 
 def roc(confidence: np.ndarray, wrong: np.ndarray, threshold: float = LOST_BELOW) -> dict:
@@ -53,8 +54,8 @@ def _average_ranks(x: np.ndarray) -> np.ndarray:
 
 
 def run(out: Path, quick: bool = False, sources: tuple[str, ...] = ("edges", "render")) -> dict:
-    """Run the open-loop scenarios into ``out`` (``confidence.md``, ``confidence.json``); ``quick``: edft+
-    only, edges only."""
+    """Run the open-loop scenarios into ``out`` (``confidence.md``, ``confidence.json``); ``quick``: edft+ only,
+    edges only."""
     out.mkdir(parents=True, exist_ok=True)
     solvers = ("edft+",) if quick else SOLVERS
     rows, labelled = [], []

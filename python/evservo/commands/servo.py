@@ -248,9 +248,10 @@ def print_summary(s: dict) -> None:
         print(f"loss: detection delay {_ms(loss['loss_detection_delay_ms'])}, re-lock {_ms(loss['relock_ms'])}, "
               f"longest confident-wrong {_ms(loss['confident_wrong_ms'])} ({_ms(loss['confident_wrong_total_ms'])} in "
               f"all), false loss {_pct(loss['false_loss_rate'])}, loop held {loss['holding_s']:.2f} s")  # fmt: skip
+    from evservo.runtime.watchdog import describe_spell
+
     for w in s["watchdog"]:
-        print(f"watchdog: no fresh pose since {w['last_pose_s']:.3f} s, braking from {w['start_s']:.3f} s, "
-              f"at rest {w['zero_s']} s, servoing again {w['end_s']} s")  # fmt: skip
+        print(describe_spell(w))
 
 
 def _ms(v: float | None) -> str:
@@ -262,8 +263,6 @@ def _pct(v: float | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.sim and (args.viewer or args.viewer_save):
-        raise ValueError("--viewer and --viewer-save apply to --sim (and evservo track), not yet to the real loop")
     if not args.sim:
         from evservo.commands.servo_real import run_real
 
