@@ -159,6 +159,25 @@ fn clip_near(tri: [ClipVertex; 3], out: &mut [ClipVertex; 4]) -> usize {
     n
 }
 
+/// Whether a sphere (centre in the camera frame, radius, metres) cannot reach pixels
+/// `[x_lo, x_hi] × [y_lo, y_hi]` of pinhole `cam` (inclusive pixel bounds): it lies wholly behind
+/// the near plane, or wholly beyond one side plane of the region's viewing frustum, grown by one
+/// pixel so that rounding cannot cull a triangle [`setup`] would keep. Near-clipped points stay
+/// inside the sphere (they lie on its triangles), so a culled mesh would yield no triangle.
+pub fn sphere_misses(cam: &Camera, centre: &Vector3<f64>, radius: f64, bounds: [f64; 4]) -> bool {
+    if centre.z + radius < NEAR_PLANE_M {
+        return true;
+    }
+    let [x_lo, x_hi, y_lo, y_hi] = bounds;
+    // A point p in front of the camera projects left of u₀ iff fx·x + (cx − u₀)·z < 0: the
+    // half-space below a plane through the optical centre with normal (fx, 0, cx − u₀).
+    let beyond = |n: Vector3<f64>| n.dot(centre) + radius * n.norm() < 0.0;
+    beyond(Vector3::new(cam.fx, 0.0, cam.cx - (x_lo - 1.0)))
+        || beyond(Vector3::new(-cam.fx, 0.0, (x_hi + 1.0) - cam.cx))
+        || beyond(Vector3::new(0.0, cam.fy, cam.cy - (y_lo - 1.0)))
+        || beyond(Vector3::new(0.0, -cam.fy, (y_hi + 1.0) - cam.cy))
+}
+
 /// Edge-function setup of a projected triangle; `None` when it has no area on screen or misses
 /// the region `[rx0, rx1] × [ry0, ry1]` (inclusive pixel bounds).
 fn setup(
@@ -337,8 +356,19 @@ impl Renderer {
             i64::from(roi.y0 + roi.height) - 1,
         ];
         self.tris.clear();
+        let region = bounds.map(|b| b as f64);
         for (mesh_id, &(mesh, t_c_o)) in scene.iter().enumerate() {
             let mesh_id = mesh_id as u32;
+            // Meshes out of view (e.g. most links of the camera's own arm) cost nothing.
+            let (centre, radius) = mesh.bounding_sphere();
+            if sphere_misses(
+                camera,
+                &(t_c_o * Point3::from(centre)).coords,
+                radius,
+                region,
+            ) {
+                continue;
+            }
             self.verts_c.clear();
             self.verts_c
                 .par_extend(mesh.vertices.par_iter().with_min_len(1024).map(|v| {
@@ -898,6 +928,69 @@ mod tests {
         let behind = Isometry3::translation(0.0, 0.0, -3.0);
         let r = render(&mesh, &cam, &behind, None, &RenderOptions::default()).unwrap();
         assert!(r.depth_m.iter().all(|d| d.is_infinite()));
+    }
+
+    #[test]
+    fn culled_meshes_would_draw_nothing() {
+        // A cube swept out of view across each side of the image and of a region, and through
+        // the camera plane: wherever the sphere test culls it, a render without the test (the
+        // mesh's triangles set up one by one) covers no pixel; and far enough out it culls.
+        let cam = cam();
+        let mesh = cube(0.2, Shading::Constant(0.5));
+        let (centre, radius) = mesh.bounding_sphere();
+        assert!(mesh.vertices.iter().all(|v| (Vector3::new(
+            f64::from(v[0]),
+            f64::from(v[1]),
+            f64::from(v[2])
+        ) - centre)
+            .norm()
+            <= radius));
+        let regions = [[0.0, 319.0, 0.0, 239.0], [100.0, 179.0, 60.0, 139.0]];
+        let mut culled = 0;
+        for bounds in regions {
+            for k in -40..=40 {
+                let s = f64::from(k) * 0.05;
+                for t in [
+                    Isometry3::translation(s, 0.0, 1.0),
+                    Isometry3::translation(0.0, s, 1.0),
+                    Isometry3::translation(0.3 * s, 0.2, 0.4 * s),
+                ] {
+                    let t = t * Isometry3::rotation(Vector3::new(0.3, 0.2 * s, 0.1));
+                    let c = (t * Point3::from(centre)).coords;
+                    if !sphere_misses(&cam, &c, radius, bounds) {
+                        continue;
+                    }
+                    culled += 1;
+                    let roi = Roi {
+                        x0: bounds[0] as u32,
+                        y0: bounds[2] as u32,
+                        width: (bounds[1] - bounds[0]) as u32 + 1,
+                        height: (bounds[3] - bounds[2]) as u32 + 1,
+                    };
+                    let ib = bounds.map(|b| b as i64);
+                    for f in &mesh.faces {
+                        let v = f.map(|k| {
+                            let p = mesh.vertices[k as usize];
+                            let q = Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                            ClipVertex {
+                                p: (t * q).coords,
+                                attr: [0.0; 2],
+                            }
+                        });
+                        let mut out = [v[0]; 4];
+                        let n = clip_near(v, &mut out);
+                        for i in 1..n.saturating_sub(1) {
+                            let tri = [out[0], out[i], out[i + 1]];
+                            assert!(
+                                setup(&cam, tri, [0.0; 3], 0, ib).is_none(),
+                                "{t:?} culled in {roi:?} but a triangle reaches it"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        assert!(culled > 100, "{culled} poses culled");
     }
 
     #[test]

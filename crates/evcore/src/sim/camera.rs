@@ -50,7 +50,7 @@ use crate::error::{ensure, Result};
 use crate::event::EventBatch;
 use crate::image::Roi;
 use crate::mesh::Mesh;
-use crate::render::{RenderOptions, Renderer, NEAR_PLANE_M};
+use crate::render::{sphere_misses, RenderOptions, Renderer, NEAR_PLANE_M};
 use crate::se3::Pose;
 use crate::sim::tiles::{tile_boxes, CanvasBox, Coverage};
 use crate::sim::{EventSimulator, SimParams, TILE_PX};
@@ -477,7 +477,14 @@ impl SimCamera {
             .occluders
             .iter()
             .zip(a.iter().zip(b))
-            .filter(|(_, (pa, pb))| pa != pb)
+            .filter(|(mesh, (pa, pb))| {
+                // A link out of the canvas at both poses has no vertex inside it at either.
+                let (centre, radius) = mesh.bounding_sphere();
+                let c = Point3::from(centre);
+                let bounds = [0.0, w - 1.0, 0.0, h - 1.0];
+                let misses = |p: &Pose| sphere_misses(canvas, &(p * c).coords, radius, bounds);
+                pa != pb && !(misses(pa) && misses(pb))
+            })
             .map(|(mesh, (pa, pb))| {
                 mesh.vertices
                     .par_iter()
