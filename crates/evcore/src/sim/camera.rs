@@ -226,6 +226,91 @@ impl PlaneRow<'_> {
     }
 }
 
+/// Margin, in canvas pixels, by which a pixel centre must clear a moving cell border for
+/// [`same_cells`] to count it unchanged: far above the rounding of either the analytic border or
+/// the per-pixel cell evaluation, so a skipped tile is one whose cells certainly did not change.
+const BORDER_MARGIN_PX: f64 = 1e-3;
+
+/// More borders than this between a tile's corners: not worth sweeping, redraw the tile.
+const MAX_SWEPT_BORDERS: i64 = 16;
+
+impl PlaneInCamera {
+    /// The canvas line where the plane coordinate `axis` (0: x, 1: y) equals `k`·cell: (α, β, γ)
+    /// such that α·u + β·v + γ has the sign of (coordinate − k·cell) at every canvas pixel (u, v)
+    /// whose ray hits the plane. From coordinate − k·cell = (m·ray)/(n·ray) with
+    /// m = d·a + (b − k·cell)·n, and n·ray = d/z of the sign of d.
+    fn border(&self, canvas: &Camera, axis: usize, k: i64) -> [f64; 3] {
+        let (a, b) = if axis == 0 {
+            (&self.ax, self.bx)
+        } else {
+            (&self.ay, self.by)
+        };
+        let m = self.d * a + (b - k as f64 * self.plane.cell_m) * self.n;
+        let m = if self.d < 0.0 { -m } else { m };
+        let (alpha, beta) = (m.x / canvas.fx, m.y / canvas.fy);
+        [alpha, beta, m.z - alpha * canvas.cx - beta * canvas.cy]
+    }
+}
+
+/// Whether the line `l0` (α·u + β·v + γ = 0) moving to `l1` passes over, or within
+/// [`BORDER_MARGIN_PX`] of, a pixel centre (integer point) of box `b`. Solved along the axis
+/// both lines are steep in; a line steep in neither counts as sweeping (never in practice).
+fn sweeps_pixel(l0: [f64; 3], l1: [f64; 3], b: &CanvasBox) -> bool {
+    let steep = |l: [f64; 3]| l[0].abs() >= l[1].abs();
+    // (along, across): the line as `across = −(l[along_k]·along + γ) / l[across_k]`.
+    let (rows, cols, k_along, k_across) = match (steep(l0), steep(l1)) {
+        (true, true) => ((b.y0, b.y1), (b.x0, b.x1), 1, 0),
+        (false, false) => ((b.x0, b.x1), (b.y0, b.y1), 0, 1),
+        _ => return true,
+    };
+    (rows.0..=rows.1).any(|t| {
+        let t = t as f64;
+        let at = |l: [f64; 3]| -(l[k_along] * t + l[2]) / l[k_across];
+        let (a, c) = (at(l0), at(l1));
+        if !(a.is_finite() && c.is_finite()) {
+            return true;
+        }
+        let lo = (a.min(c) - BORDER_MARGIN_PX).max(cols.0 as f64).ceil();
+        let hi = (a.max(c) + BORDER_MARGIN_PX).min(cols.1 as f64).floor();
+        lo <= hi
+    })
+}
+
+/// Whether every pixel centre of canvas box `b` sees the same background cell with the plane at
+/// `before` and at `now`. The plane's coordinates are projective in the canvas, so over a box
+/// they take their extremes at the corners: the cell borders that can cross the box lie between
+/// the corners' cells, each is a straight canvas line, and a centre changes cell only if the
+/// line of some border passes over it. Conservative: any doubt (a corner that misses the plane,
+/// many borders, a margin call) answers false, and the tile is redrawn and compared.
+fn same_cells(before: &PlaneInCamera, now: &PlaneInCamera, canvas: &Camera, b: &CanvasBox) -> bool {
+    let corners = |p: &PlaneInCamera| {
+        b.corners()
+            .map(|(x, y)| p.at_row(canvas, y).cell(x).map(|(_, c)| c))
+    };
+    let (c0, c1) = (corners(before), corners(now));
+    let (Some(c0), Some(c1)) = (
+        c0.into_iter().collect::<Option<Vec<_>>>(),
+        c1.into_iter().collect::<Option<Vec<_>>>(),
+    ) else {
+        return false;
+    };
+    (0..2).all(|axis| {
+        let pick = |c: &(i64, i64)| if axis == 0 { c.0 } else { c.1 };
+        let lo = c0.iter().chain(&c1).map(pick).min().unwrap_or(0);
+        let hi = c0.iter().chain(&c1).map(pick).max().unwrap_or(0);
+        if hi - lo > MAX_SWEPT_BORDERS {
+            return false;
+        }
+        (lo + 1..=hi).all(|k| {
+            !sweeps_pixel(
+                before.border(canvas, axis, k),
+                now.border(canvas, axis, k),
+                b,
+            )
+        })
+    })
+}
+
 /// ⌊v⌋ for finite |v| < 2⁶³ (far-off rays saturate, which only merges cells beyond the
 /// horizon). `f64::floor` is a libm call without SSE4.1; this is one cast and a compare.
 #[inline]
@@ -708,8 +793,9 @@ impl SimCamera {
                 continue;
             };
             let bg_changed = plane_before.as_ref().is_some_and(|before| {
-                let now = plane_now.as_ref().and_then(|p| one_cell(p, b));
-                now.is_none() || one_cell(before, b) != now
+                plane_now
+                    .as_ref()
+                    .is_none_or(|now| !same_cells(before, now, &canvas, b))
             });
             *flag = bg_changed || cover.meets(&moving, b);
             if *flag && cover.meets(&drawn, b) {
