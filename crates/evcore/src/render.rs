@@ -425,6 +425,28 @@ impl Renderer {
         roi: Roi,
         opts: &RenderOptions,
     ) -> Result<&Rendered> {
+        self.draw_prepared_rows(scene, camera, roi, None, opts)
+    }
+
+    /// [`Self::draw_prepared`] restricted to a column range per row: `rows[k]` is the inclusive
+    /// pixel range [x_lo, x_hi] drawn in row `roi.y0 + k` (empty when x_lo > x_hi); the rest of
+    /// `roi` is left as background, as if no triangle covered it. Drawn pixels equal those of a
+    /// whole-region draw up to the rounding of 1/z stepped from a different first column.
+    pub fn draw_prepared_rows(
+        &mut self,
+        scene: &[(&Mesh, &Pose)],
+        camera: &Camera,
+        roi: Roi,
+        rows: Option<&[(i64, i64)]>,
+        opts: &RenderOptions,
+    ) -> Result<&Rendered> {
+        ensure(rows.is_none_or(|r| r.len() == roi.height as usize), || {
+            format!(
+                "{} column ranges for the {} rows of {roi:?}",
+                rows.map_or(0, <[_]>::len),
+                roi.height
+            )
+        })?;
         let Some((region, n_meshes)) = self.prepared else {
             return Err(crate::Error::InvalidArgument(
                 "draw_prepared before prepare_scene".into(),
@@ -452,6 +474,22 @@ impl Renderer {
 
         let (w, h) = (roi.width as usize, roi.height as usize);
         let n_bands = h.div_ceil(BAND_ROWS);
+        // Each band's columns: the union of its rows' ranges (the whole region without `rows`).
+        let band_cols: Vec<(i64, i64)> = (0..n_bands)
+            .map(|b| match rows {
+                None => (bounds[0], bounds[1]),
+                Some(r) => r[b * BAND_ROWS..((b + 1) * BAND_ROWS).min(h)].iter().fold(
+                    (i64::MAX, i64::MIN),
+                    |(lo, hi), &(a, z)| {
+                        if a > z {
+                            (lo, hi)
+                        } else {
+                            (lo.min(a), hi.max(z))
+                        }
+                    },
+                ),
+            })
+            .collect();
         self.bins.resize_with(n_bands, Vec::new);
         self.bins.iter_mut().for_each(Vec::clear);
         for (id, t) in self.tris.iter().enumerate() {
@@ -461,8 +499,13 @@ impl Renderer {
             }
             let first = (y_lo - bounds[2]) as usize / BAND_ROWS;
             let last = (y_hi - bounds[2]) as usize / BAND_ROWS;
-            for bin in &mut self.bins[first..=last] {
-                bin.push(id as u32);
+            for (bin, &(lo, hi)) in self.bins[first..=last]
+                .iter_mut()
+                .zip(&band_cols[first..=last])
+            {
+                if t.x_hi >= lo && t.x_lo <= hi {
+                    bin.push(id as u32);
+                }
             }
         }
 
@@ -472,7 +515,7 @@ impl Renderer {
         self.out.intensity.resize(n, 0.0);
         self.out.normal_c.resize(n, [0.0; 3]);
         let band_len = BAND_ROWS * w;
-        let (tris, bins) = (&self.tris, &self.bins);
+        let (tris, bins, rows_cols) = (&self.tris, &self.bins, rows);
         let Rendered {
             depth_m,
             intensity,
@@ -496,6 +539,7 @@ impl Renderer {
                     y0: y_first,
                     width: w,
                     rows,
+                    cols: rows_cols.map(|r| &r[band * BAND_ROWS..band * BAND_ROWS + rows]),
                 };
                 rasterize_band(tris, &bins[band], &band_bounds, depth, ids);
                 shade_band(
@@ -514,12 +558,14 @@ impl Renderer {
     }
 }
 
-/// Image position of one band: its first pixel (x0, y0), width and number of rows.
-struct Band {
+/// Image position of one band: its first pixel (x0, y0), width and number of rows, and the
+/// inclusive column range drawn in each of its rows (all of them when `None`).
+struct Band<'a> {
     x0: i64,
     y0: i64,
     width: usize,
     rows: usize,
+    cols: Option<&'a [(i64, i64)]>,
 }
 
 /// Visibility pass: `inv_z` holds 1/z (0 = nothing yet), `ids` the winning triangle.
@@ -535,6 +581,13 @@ fn rasterize_band(tris: &[Tri], bin: &[u32], band: &Band, inv_z: &mut [f32], ids
             // Clipping to the band's columns here equals clipping the box at setup: the bounds
             // are integers, so they commute with the span's rounding.
             let (xs, xe) = (xs.max(band.x0), xe.min(band.x0 + band.width as i64 - 1));
+            let (xs, xe) = match band.cols {
+                Some(c) => {
+                    let (lo, hi) = c[(y - band.y0) as usize];
+                    (xs.max(lo), xe.min(hi))
+                }
+                None => (xs, xe),
+            };
             if xs > xe {
                 continue;
             }

@@ -787,6 +787,9 @@ impl SimCamera {
         };
         let cover = &self.cover;
         let mut need: Option<CanvasBox> = None;
+        // Per canvas row, the columns that redrawn tiles meeting a mesh read: the only mesh
+        // pixels the composite looks at (an arm across the view has a much larger box).
+        let mut cols = vec![(i64::MAX, i64::MIN); self.canvas.height as usize];
         for (flag, b) in self.changed.iter_mut().zip(&self.tile_boxes) {
             let Some(b) = b else {
                 *flag = false;
@@ -799,6 +802,9 @@ impl SimCamera {
             });
             *flag = bg_changed || cover.meets(&moving, b);
             if *flag && cover.meets(&drawn, b) {
+                for c in &mut cols[b.y0..=b.y1] {
+                    *c = (c.0.min(b.x0 as i64), c.1.max(b.x1 as i64));
+                }
                 need = Some(need.map_or(*b, |n| CanvasBox {
                     x0: n.x0.min(b.x0),
                     y0: n.y0.min(b.y0),
@@ -815,10 +821,14 @@ impl SimCamera {
         });
         let rendered = match mesh_roi {
             Some(roi) => {
-                Some(
-                    self.renderer
-                        .draw_prepared(&scene, &self.canvas, roi, &self.opts)?,
-                )
+                let rows = &cols[roi.y0 as usize..(roi.y0 + roi.height) as usize];
+                Some(self.renderer.draw_prepared_rows(
+                    &scene,
+                    &self.canvas,
+                    roi,
+                    Some(rows),
+                    &self.opts,
+                )?)
             }
             None => None,
         };
