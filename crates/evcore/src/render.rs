@@ -429,8 +429,9 @@ impl Renderer {
     }
 
     /// [`Self::draw_prepared`] restricted to a column range per row: `rows[k]` is the inclusive
-    /// pixel range [x_lo, x_hi] drawn in row `roi.y0 + k` (empty when x_lo > x_hi); the rest of
-    /// `roi` is left as background, as if no triangle covered it. Drawn pixels equal those of a
+    /// pixel range [x_lo, x_hi] drawn in row `roi.y0 + k` (empty when x_lo > x_hi). Only depth
+    /// and intensity inside the ranges are written: the rest of `roi`, and `normal_c`, hold
+    /// whatever they held (the rendered camera reads no more). Drawn pixels equal those of a
     /// whole-region draw up to the rounding of 1/z stepped from a different first column.
     pub fn draw_prepared_rows(
         &mut self,
@@ -626,19 +627,33 @@ fn shade_band(
     let w = band.width;
     for r in 0..band.rows {
         let y = (band.y0 + r as i64) as f64;
-        let mut c = 0;
+        // With column ranges only they are shaded, and normals are left alone.
+        let (mut c, w) = match band.cols {
+            Some(cols) => {
+                let (lo, hi) = cols[r];
+                let (lo, hi) = (lo.max(band.x0), hi.min(band.x0 + w as i64 - 1));
+                if lo > hi {
+                    continue;
+                }
+                ((lo - band.x0) as usize, (hi - band.x0) as usize + 1)
+            }
+            None => (0, w),
+        };
         while c < w {
-            let row = r * w;
+            let row = r * band.width;
             let id = ids[row + c];
             let end = ids[row + c..row + w]
                 .iter()
                 .position(|&k| k != id)
                 .map_or(w, |n| c + n);
             let run = row + c..row + end;
+            let normals = band.cols.is_none().then_some(&mut *normals);
             if id == NO_TRIANGLE {
                 depth[run.clone()].fill(f32::INFINITY);
                 intensity[run.clone()].fill(opts.background);
-                normals[run].fill([0.0; 3]);
+                if let Some(n) = normals {
+                    n[run].fill([0.0; 3]);
+                }
             } else {
                 let t = &tris[id as usize];
                 let x0 = (band.x0 + c as i64) as f64;
@@ -653,7 +668,9 @@ fn shade_band(
                         shade_run(cam, opts, t, x0, y, out, |uv| texture.sample(uv[0], uv[1]))
                     }
                 }
-                normals[run].fill(t.normal_c);
+                if let Some(n) = normals {
+                    n[run].fill(t.normal_c);
+                }
             }
             c = end;
         }
