@@ -20,6 +20,7 @@ __all__ = [
     "Evt3Encoder",
     "Mesh",
     "RawReader",
+    "Replay",
     "SimCamera",
     "Tracker",
     "__version__",
@@ -28,6 +29,7 @@ __all__ = [
     "euclidean_distance",
     "extract_point_set",
     "render",
+    "replay_into",
 ]
 
 # PyO3 classes are built by ``__new__`` and cannot be subclassed (``@final``).
@@ -237,6 +239,20 @@ class RawReader:
     def read_until(self, t_us: int) -> _Events | None: ...
     def read_all(self) -> _Events: ...
     def peek_t(self) -> int | None: ...
+
+@final
+class Replay:
+    @property
+    def running(self) -> bool: ...
+    def wait(self, timeout: float | None = None) -> bool: ...
+    def stop(self) -> None: ...
+    def stats(self) -> dict[str, int | None]: ...
+    def __enter__(self) -> Replay: ...
+    def __exit__(self, _exc_type: object | None, _exc: object | None, _tb: object | None) -> bool: ...
+
+def replay_into(
+    tracker: Tracker, path: str | os.PathLike[str], batch_us: int = 1000, speed: float | None = ...
+) -> Replay: ...
 
 @final
 class Evt3Decoder:
