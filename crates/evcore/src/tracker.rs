@@ -169,6 +169,12 @@ const VIEW_MARGIN_PX: f64 = 2.0;
 /// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
 const MIN_VISIBLE_POINTS: usize = 6;
 
+/// Below this share of S* in view, LM registers at full resolution only. The coarse levels' wide
+/// basins are safe while the whole outline holds them in place; with part of it out of view they
+/// slide towards edges the missing part would have ruled out (issue 13, objects suite: can at
+/// 0.6 m partly out of view, 233 mm / 22° with three levels, about 1 mm / 0.5° with one).
+const FULL_VIEW_FRACTION: f32 = 0.99;
+
 /// `new` with its rotation relative to `prior` about each of `axes` (object frame, each a unit
 /// axis and a point on it) removed; the points on the axis stay where `new` put them.
 fn hold_axes(prior: &Pose, new: Pose, axes: &[(Vector3<f64>, Vector3<f64>)]) -> Pose {
@@ -660,7 +666,7 @@ impl Solver {
             self.publish();
             return self.last;
         }
-        let n_levels = if kind == StepKind::Lm {
+        let n_levels = if kind == StepKind::Lm && visible_fraction >= FULL_VIEW_FRACTION {
             self.config.field.levels
         } else {
             1
