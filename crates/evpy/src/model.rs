@@ -233,7 +233,7 @@ type PointsAndKinds<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u8>>)
 /// than spread evenly. Raises ValueError if the object is out of view or shows fewer than 20 edge
 /// pixels.
 #[pyfunction]
-#[pyo3(signature = (mesh, camera, T_c_o, max_points=1000, seed=0, depth_jump_m=0.01, crease_deg=30.0, texture_grad=0.08, balance=0.5))]
+#[pyo3(signature = (mesh, camera, T_c_o, max_points=1000, seed=0, depth_jump_m=0.01, crease_deg=30.0, texture_grad=0.08, balance=0.0))]
 #[allow(non_snake_case, clippy::too_many_arguments)]
 fn extract_point_set<'py>(
     py: Python<'py>,

@@ -167,7 +167,10 @@ def rendered(case: Case, camera: _evcore.Camera, cache: Path | None) -> tuple[np
             return z["events"], z["gt_t"], z["gt_T"]
     events, gt_t, gt_T = render_case(case, camera)
     cache.mkdir(parents=True, exist_ok=True)
-    np.savez(path, events=events, gt_t=gt_t, gt_T=gt_T)
+    partial = path.with_suffix(".partial")
+    with partial.open("wb") as f:  # renamed when complete: a reader never sees half a file
+        np.savez(f, events=events, gt_t=gt_t, gt_T=gt_T)
+    partial.replace(path)
     return events, gt_t, gt_T
 
 
