@@ -161,6 +161,7 @@ def extract_point_set(
     depth_jump_m: float = 0.01,
     crease_deg: float = 30.0,
     texture_grad: float = 0.08,
+    balance: float = 0.0,
 ) -> tuple[_F64, npt.NDArray[np.uint8]]: ...
 def euclidean_distance(mask: npt.NDArray[np.uint8]) -> _F32: ...
 def distance_field(
