@@ -27,7 +27,7 @@ class JointLimits:
             # An arm whose interface imposes no jerk limit has an infinite one.
             ok = np.all(~np.isnan(a)) if name == "qddd_max" else np.all(np.isfinite(a))
             if a.shape != (n,) or not ok:
-                raise ValueError(f"{name} must be a finite ({n},) array" + (" (inf allowed)" if name == "qddd_max" else ""))
+                raise ValueError(f"{name} must be a ({n},) array of finite numbers (jerks may be inf)")
             object.__setattr__(self, name, a)
         if np.any(self.q_min >= self.q_max) or min(self.qd_max.min(), self.qdd_max.min(), self.qddd_max.min()) <= 0:
             raise ValueError("need q_min < q_max and positive velocity, acceleration and jerk limits")

@@ -6,7 +6,8 @@ exactly, as a stiff industrial joint controller would. Each command (a twist, re
 setpoint to be reached by the end of the command's period and held until the next command; every
 physics step moves the joint velocities towards it with the acceleration changing by no more than the
 jerk limit and staying within the acceleration limit (the rate limiter of the Franka and UR
-controllers), clips them to the velocity limit and integrates the positions, clamped to their range. Several arms may share one ``MjModel``/``MjData``; whoever owns the data calls
+controllers), clips them to the velocity limit and integrates the positions, clamped to their range.
+Several arms may share one ``MjModel``/``MjData``; whoever owns the data calls
 :meth:`SimArm.integrate` on each and then :func:`forward` once.
 """
 
