@@ -121,13 +121,20 @@ def episode_key(cfg: EpisodeConfig) -> str:
     )
 
 
+#: Packages of evservo an episode does not run (the suites' reports and the command line): editing them
+#: leaves the finished episodes reusable.
+NOT_IN_EPISODES = ("bench", "commands")
+
+
 def code_version() -> str:
-    """Content hash of the code an episode runs: evservo's Python sources and its compiled core."""
+    """Content hash of the code an episode runs: evservo's Python sources (but the suites and the
+    commands, :data:`NOT_IN_EPISODES`) and its compiled core."""
     import evservo._evcore as core
 
     pkg = Path(evservo.__file__).parent
+    sources = [p for p in sorted(pkg.rglob("*.py")) if p.relative_to(pkg).parts[0] not in NOT_IN_EPISODES]
     h = hashlib.sha256()
-    for path in [*sorted(pkg.rglob("*.py")), Path(core.__file__)]:
+    for path in [*sources, Path(core.__file__)]:
         h.update(str(path.relative_to(pkg)).encode())
         h.update(path.read_bytes())
     return h.hexdigest()
@@ -200,6 +207,10 @@ def run_all(
         else:
             todo[key] = cfg
     reused = len(summaries)
+    # Our controller's episodes first (plan order otherwise): a run cut short has those, and reuses them.
+    first = {"feedforward": 0, "predictor": 1, "sweep": 2}
+    rank = {key: min(first.get(sec, len(first)) for sec, k, _ in rows if k == key) for key in todo}
+    todo = dict(sorted(todo.items(), key=lambda item: rank[item[0]]))
     bar = tqdm(total=len(todo) + len(summaries), initial=len(summaries), unit="episode", desc="paper suite")
     with bar:
         if scheduler is not None:
@@ -276,7 +287,7 @@ def report(
              cfg.feedforward)  # fmt: skip
         groups.setdefault(g, []).append({**s, "_key": key})
     lines = [
-        "# evservo paper suite",
+        "# evservo paper suite" + ("" if events == "edges" else " on rendered events"),
         "",
         f"Command: `evservo bench --suite paper{' --quick' if quick else ''}{events_flag} --jobs N --out {out}`; "
         f"evservo {evservo.__version__}, Python {platform.python_version()}, {os.cpu_count()} CPUs, "
