@@ -152,6 +152,7 @@ def print_real_summary(s: dict) -> None:
         lim = ", ".join(f"{k} {v}" for k, v in g["limited"].items())
         verb = "logged (dry run)" if g["dry_run"] else "sent"
         print(f"arm: {g['commands']} commands {verb}; limited: {lim}; {g['halts']} stops")
+    from evservo.runtime.watchdog import describe_spell
+
     for w in s["watchdog"]:
-        print(f"watchdog: {w['reason']}; last pose {w['last_pose_s']:.3f} s, braking from {w['start_s']:.3f} s, "
-              f"at rest {'never' if w['zero_s'] is None else format(w['zero_s'], '.3f')} s")  # fmt: skip
+        print(describe_spell(w))
