@@ -217,8 +217,6 @@ def print_summary(s: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.sim and (args.viewer or args.viewer_save):
-        raise ValueError("--viewer and --viewer-save apply to --sim (and evservo track), not yet to the real loop")
     if not args.sim:
         from evservo.commands.servo_real import run_real
 
