@@ -22,6 +22,7 @@ __all__ = [
     "Evt3Encoder",
     "Mesh",
     "RawReader",
+    "Replay",
     "SimCamera",
     "Tracker",
     "__version__",
@@ -30,6 +31,7 @@ __all__ = [
     "euclidean_distance",
     "extract_point_set",
     "render",
+    "replay_into",
 ]
 
 # PyO3 classes are built by ``__new__`` and cannot be subclassed (``@final``).
@@ -172,6 +174,7 @@ def extract_point_set(
     depth_jump_m: float = 0.01,
     crease_deg: float = 30.0,
     texture_grad: float = 0.08,
+    balance: float = 0.0,
 ) -> tuple[_F64, npt.NDArray[np.uint8]]: ...
 def euclidean_distance(mask: npt.NDArray[np.uint8]) -> _F32: ...
 def distance_field(
@@ -250,6 +253,20 @@ class RawReader:
     def read_until(self, t_us: int) -> _Events | None: ...
     def read_all(self) -> _Events: ...
     def peek_t(self) -> int | None: ...
+
+@final
+class Replay:
+    @property
+    def running(self) -> bool: ...
+    def wait(self, timeout: float | None = None) -> bool: ...
+    def stop(self) -> None: ...
+    def stats(self) -> dict[str, int | None]: ...
+    def __enter__(self) -> Replay: ...
+    def __exit__(self, _exc_type: object | None, _exc: object | None, _tb: object | None) -> bool: ...
+
+def replay_into(
+    tracker: Tracker, path: str | os.PathLike[str], batch_us: int = 1000, speed: float | None = ...
+) -> Replay: ...
 
 @final
 class Evt3Decoder:

@@ -20,6 +20,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.jobs < 1:
         raise ValueError("--jobs must be at least 1")
+    if args.cache is not None and args.suite != "objects":
+        raise ValueError("--cache applies to the objects suite only")
     # Checked before any episode runs; the paper suite's finished episodes in it are reused.
     prepare_out_dir(args.out, stale=REPORTS[args.suite])
     if args.results is not None:
@@ -34,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     if args.suite == "objects":
         from evservo.bench import objects
 
-        objects.run(Path(args.out), quick=args.quick)
+        objects.run(Path(args.out), quick=args.quick, cache=None if args.cache is None else Path(args.cache))
         print(f"wrote {Path(args.out) / 'objects.md'} and objects.json")
         _refresh(args, "objects", Path(args.out) / "objects.md")
         return 0
@@ -95,6 +97,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--scheduler",
         metavar="tcp://HOST:PORT",
         help="run the paper suite's episodes on this running dask.distributed cluster instead of --jobs",
+    )
+    b.add_argument(
+        "--cache",
+        metavar="DIR",
+        help="objects suite: keep the rendered recordings here and reuse them (to compare tracker changes)",
     )
     b.add_argument(
         "--results",
