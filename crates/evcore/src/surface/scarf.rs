@@ -635,7 +635,7 @@ mod tests {
     /// of the block, with a few pixels firing over and over so single counts reach N.
     #[test]
     fn agrees_with_the_reference_up_to_the_largest_fifo() {
-        let (w, h) = (203u32, 131u32);
+        let (w, h) = (203u32, 140u32);
         let mut rng = Rng::new(8);
         let pixels: Vec<u32> = (0..80_000)
             .map(|i| match i % 3 {
