@@ -227,18 +227,21 @@ class ClockedTracker:
     ingested on a *producer* timeline: it starts when it has arrived and the previous batch is done,
     and takes its own cost there. The solver's timeline is charged only its steps; a step sees every
     batch whose ingest has started by the step's start (SCARF is written in place, so a batch being
-    ingested is already partly visible to a concurrent reader). A producer slower than the stream
-    falls behind and the solver sees ever older events, as on the rig without thinning.
+    ingested is already partly visible to a concurrent reader). With ``thin``, the producer thins
+    each batch under overload as ``Tracker.push`` does (within ``ingest_core_share`` of its core, by
+    measured costs), so it keeps up with the stream and the solver sees fresh events; without, a
+    producer slower than the stream falls behind.
     Batches are queued with their arrival time; :meth:`advance` runs the steps whose start time has
     come, and :meth:`latest` returns what had been published by a given time.
     """
 
-    def __init__(self, tracker: Tracker, cost: Callable[[str, float, int], float]) -> None:
+    def __init__(self, tracker: Tracker, cost: Callable[[str, float, int], float], thin: bool = True) -> None:
         """``cost(kind, cpu_s, n_events)``: seconds to charge for ``kind`` "lm" or "search" (a solver
         step) or "ingest" (a batch of ``n_events`` on the producer), which took ``cpu_s`` of this
         thread's CPU time."""
         self.tracker = tracker
         self.cost = cost
+        self.thin = thin
         self.cycle_len = tracker.cycle_len
         self.free_us = 0  # when the solver can start its next step
         self.producer_free_us = -(2**62)  # when the producer can start ingesting the next batch
@@ -265,7 +268,7 @@ class ClockedTracker:
         while (start := self._next_ingest_us()) is not None and start <= now_us:
             events = self._queue.popleft()[1]
             started = time.thread_time()
-            self.tracker.ingest(events)
+            self.tracker.ingest(events, thin=self.thin)
             cost_us = max(1, round(self.cost("ingest", time.thread_time() - started, len(events)) * 1e6))
             self.producer_free_us = start + cost_us
             self.ingest_busy_us += cost_us
@@ -370,7 +373,8 @@ def run_episode(
     core = Tracker(camera, cfg.object, T_c_o0, solver=cfg.tracker, frontend=cfg.frontend, seed=cfg.seed)
     arms = ArmMeshes(scene) if cfg.render_arms else None
     source = _primed_source(cfg, camera, T_c_o0, core, arms)
-    tracker = ClockedTracker(core, _cost_model(cfg))
+    # Thinning decides by measured costs: the fixed cost model keeps every event to stay reproducible.
+    tracker = ClockedTracker(core, _cost_model(cfg), thin=cfg.cost_model == "measured")
     traj = trajectories.make_trajectory(cfg.trajectory, speed_mps=cfg.speed_mps, rot_rate_dps=cfg.rot_rate_dps)
     ur = DelayedArm(scene.ur, cfg.ur_latency_s)
     panda = DelayedArm(scene.panda, cfg.panda_latency_s)

@@ -422,7 +422,9 @@ impl ScarfReader {
         if x >= self.shared.width || y >= self.shared.height {
             return 0;
         }
-        u16::from(self.shared.counts[y as usize * self.shared.width as usize + x as usize].load(Relaxed))
+        u16::from(
+            self.shared.counts[y as usize * self.shared.width as usize + x as usize].load(Relaxed),
+        )
     }
 
     /// Number of active pixels as of the writer's last completed batch.
