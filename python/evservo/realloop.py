@@ -252,6 +252,7 @@ def run_real_loop(
     progress: Callable[[str], None] | None = None,
     meta: dict[str, Any] | None = None,
     clock: Callable[[], float] = time.monotonic,
+    on_cycle: Callable[[float, np.ndarray, np.ndarray], None] | None = None,
 ) -> RealLoopResult:
     """Run the loop (see the module docstring) and return what happened.
 
@@ -260,6 +261,8 @@ def run_real_loop(
     initialised at the object's start pose (or anything with ``start/push/latest/stop/stats``).
     ``T_c_o_des``: desired object pose in the camera (default: the tracked pose at servo start).
     ``progress``: called with status lines. ``meta``: copied into the summary (robot, camera, …).
+    ``on_cycle``: called on every servo cycle with its time (s since servo start), the camera pose
+    ``T_w_c`` and the desired ``T_c_o``; it must return at once (a live viewer stores them).
     The caller keeps ownership of ``arm`` and ``source`` (close them afterwards); the arm is stopped
     and the tracker stopped before this returns. Raises :class:`TrackingError` if the tracker has no
     usable pose after the settle time, and the camera's error if the source fails while settling.
@@ -349,6 +352,8 @@ def run_real_loop(
                 late_s=now - deadline, cycle_s=done_t - now,
             )  # fmt: skip
             states.append(cmd.state)
+            if on_cycle is not None:
+                on_cycle(t, T_w_c, des)
             if stopping is not None:
                 at_rest = not np.any(v_cmd)
                 if at_rest and spells and spells[-1].zero_s is None and stopping.startswith("watchdog"):

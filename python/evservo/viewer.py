@@ -4,7 +4,10 @@ rerun-sdk is an optional extra (``pip install 'evservo[viewer]'``, about 700 MB)
 viewer is asked for. The loops call one object, :class:`RerunViewer`, once per update
 (:meth:`RerunViewer.track` from ``evservo track``, :meth:`RerunViewer.servo` from
 ``evservo servo --sim``); it logs at most once per ``period_us`` of sensor time (30 Hz by default)
-and sums the events in between, so a 1 kHz loop is not slowed by logging.
+and sums the events in between, so a 1 kHz loop is not slowed by logging. The real loops
+(``servo --robot``, ``ros servo``) call :meth:`RerunViewer.servo` from a thread of their own
+(:class:`~evservo.runtime.live_view.LiveView`), never from the control loop; with the threaded
+tracker there the distance field is not shown (it lives inside the tracker's thread).
 
 What is logged, on the timeline ``sensor_time`` (the run's event time):
 
@@ -124,13 +127,15 @@ class RerunViewer:
 
     def servo(
         self, t_us: int, events: np.ndarray, est: Any, tracker: Any, *, T_w_c: np.ndarray,
-        T_c_o_des: np.ndarray, T_w_o_true: np.ndarray | None = None,
+        T_c_o_des: np.ndarray, T_w_o_true: np.ndarray | None = None, threaded: bool = False,
     ) -> None:  # fmt: skip
         """One control tick of a servo run: as :meth:`track`, in the bench's world frame (camera
-        at ``T_w_c``), with the servo error of the estimate against ``T_c_o_des``."""
+        at ``T_w_c``), with the servo error of the estimate against ``T_c_o_des``. ``threaded``:
+        the tracker runs its own thread (the real loop), whose S* and field this cannot read: S*
+        is projected at ``est`` instead and the field is not shown."""
         if not self._due(t_us, events):
             return
-        self._log_camera_views(tracker, est)
+        self._log_camera_views(tracker, est, threaded)
         self._pose("world/camera", T_w_c)
         self._pose("world/object", T_w_c @ est.T_c_o)
         self._pose("world/object_desired", T_w_c @ T_c_o_des)
@@ -144,7 +149,7 @@ class RerunViewer:
         self._rec.flush()
         self._rec.disconnect()
 
-    def _log_camera_views(self, tracker: Any, est: Any) -> None:
+    def _log_camera_views(self, tracker: Any, est: Any, threaded: bool = False) -> None:
         rr, rec = self._rr, self._rec
         events = np.concatenate(self._pending) if self._pending else np.empty(0)
         self._pending = []
@@ -154,9 +159,13 @@ class RerunViewer:
         rec.log(
             "camera/events", rr.EncodedImage(contents=_event_png(events, cam.width, cam.height), media_type="image/png")
         )
-        pts = np.asarray(tracker.projected_points())
+        if threaded:
+            pts = _project_in_view(cam, tracker.points_o, est.T_c_o)
+            field, (x0, y0) = np.zeros((0, 0), np.float32), (0, 0)
+        else:
+            pts = np.asarray(tracker.projected_points())
+            field, (x0, y0) = tracker.field()
         rec.log("camera/sstar", rr.Points2D(pts, colors=[255, 40, 40], radii=0.8))
-        field, (x0, y0) = tracker.field()
         field = np.asarray(field, dtype=np.float32)
         if field.size:
             rec.log("field/distance", rr.Image(field))
@@ -172,6 +181,17 @@ class RerunViewer:
         pos_m, rot_rad = pose_errors(T_a[None], T_b[None])
         self._rec.log(f"errors/{kind}_pos_mm", self._rr.Scalars(float(pos_m[0]) * 1e3))
         self._rec.log(f"errors/{kind}_rot_deg", self._rr.Scalars(float(np.rad2deg(rot_rad[0]))))
+
+
+def _project_in_view(camera: _evcore.Camera, points_o: np.ndarray, T_c_o: np.ndarray) -> np.ndarray:
+    """Model points (object frame, m) at ``T_c_o`` in rectified pixels, those in front of the camera
+    and inside the image only, (N, 2)."""
+    T = np.asarray(T_c_o, dtype=float)
+    pts_c = np.asarray(points_o, dtype=float) @ T[:3, :3].T + T[:3, 3]
+    pts_c = pts_c[pts_c[:, 2] > 1e-6]
+    px = np.asarray(camera.project(pts_c, distort=False)).reshape(-1, 2)
+    inside = (px[:, 0] >= 0) & (px[:, 0] < camera.width) & (px[:, 1] >= 0) & (px[:, 1] < camera.height)
+    return px[inside]
 
 
 def _event_png(events: np.ndarray, width: int, height: int) -> bytes:

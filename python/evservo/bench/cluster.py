@@ -18,13 +18,61 @@ Run a cluster by hand::
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import contextlib
+import logging
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from typing import Any
 
 #: One retry of a task whose worker died (then the scheduler gives up with KilledWorker).
 ALLOWED_WORKER_DEATHS = 1
 #: One retry of a task that raised.
 RETRIES = 1
+
+
+@contextmanager
+def local_cluster(workers: int, start_timeout_s: float = 120.0) -> Iterator[str]:
+    """A scheduler in this process and ``workers`` single-threaded ``dask worker`` processes on this
+    machine (``--jobs N`` without ``--scheduler``), stopped on exit; yields the scheduler's address.
+
+    The same engine as a remote cluster, so a worker that dies mid-episode (out of memory, killed) is
+    retried once and then reported, instead of leaving a process pool waiting for it forever. The
+    workers run in sessions of their own: Ctrl-C reaches only this process, which cancels the tasks and
+    stops them (a worker interrupted while it starts would print a traceback and be restarted). If this
+    process dies without stopping them, they exit once the scheduler has been gone for a while."""
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+        address = cluster.scheduler_address
+        cmd = [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "1", "--nthreads", "1"]
+        cmd += ["--no-dashboard", "--host", "127.0.0.1", "--death-timeout", "30"]
+        procs = [
+            subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+            for _ in range(workers)
+        ]
+        try:
+            with Client(address, set_as_default=False) as client:
+                client.wait_for_workers(workers, timeout=start_timeout_s)
+            yield address
+        finally:
+            for p in procs:
+                _stop_session(p)
+
+
+def _stop_session(proc: subprocess.Popen, grace_s: float = 10.0) -> None:
+    """Stop a worker and its nanny (one session): SIGTERM, then SIGKILL after ``grace_s``."""
+    for sig, wait_s in ((signal.SIGTERM, grace_s), (signal.SIGKILL, None)):
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, sig)
+        try:
+            proc.wait(timeout=wait_s)
+            return
+        except subprocess.TimeoutExpired:
+            continue
 
 
 def _set_allowed_failures(n: int, dask_scheduler: Any = None) -> None:  # runs on the scheduler

@@ -73,7 +73,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--suite", choices=SUITES, default="latency")
     b.add_argument("--out", default="out/bench", help="output directory")
     b.add_argument("--quick", action="store_true", help="short runs, one seed (for tests)")
-    b.add_argument("--jobs", type=int, default=1, help="episodes run in parallel processes (paper suite)")
+    b.add_argument("--jobs", type=int, default=1, help="worker processes on this machine (paper suite)")
     b.add_argument(
         "--events",
         choices=("edges", "render"),

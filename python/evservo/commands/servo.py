@@ -210,14 +210,13 @@ def print_summary(s: dict) -> None:
           f"Panda {t['panda_rate_hz']:g} Hz + {t['panda_latency_ms']:g} ms, "
           f"UR5e {t['ur_rate_hz']:g} Hz + {t['ur_latency_ms']:g} ms; command cut to the arm's reach "
           f"{100 * s['arm_limited_fraction']:.0f} % of the time")  # fmt: skip
+    from evservo.runtime.watchdog import describe_spell
+
     for w in s["watchdog"]:
-        print(f"watchdog: no fresh pose since {w['last_pose_s']:.3f} s, braking from {w['start_s']:.3f} s, "
-              f"at rest {w['zero_s']} s, servoing again {w['end_s']} s")  # fmt: skip
+        print(describe_spell(w))
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.sim and (args.viewer or args.viewer_save):
-        raise ValueError("--viewer and --viewer-save apply to --sim (and evservo track), not yet to the real loop")
     if not args.sim:
         from evservo.commands.servo_real import run_real
 

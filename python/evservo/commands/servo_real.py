@@ -52,11 +52,13 @@ def run_real(args: argparse.Namespace) -> int:
 def _run_real(args: argparse.Namespace) -> int:
     from evservo import cameras, io
     from evservo.outputs import prepare_out_dir
-    from evservo.realloop import OUTPUTS, RealLoopConfig, run_real_loop, summarize, write_outputs
+    from evservo.realloop import OUTPUTS, RealLoopConfig, run_real_loop
     from evservo.robots.config import load_rig_config
     from evservo.robots.open import open_arm, parse_robot
     from evservo.runtime.inputs import resolve_camera
+    from evservo.runtime.live_view import viewing
     from evservo.tracking import Tracker
+    from evservo.viewer import open_viewer
 
     try:
         spec = parse_robot(args.robot)
@@ -107,7 +109,13 @@ def _run_real(args: argparse.Namespace) -> int:
         if desired is None and rig is not None:
             desired = rig.desired_pose
         tracker = Tracker(camera, model, init, solver=args.tracker)
-        arm = open_arm(spec, rig, args.dry_run, args.realtime or "enforce")
+        viewer = open_viewer(args.viewer, args.viewer_save)  # before the arm: a missing rerun is bad input
+        try:
+            arm = open_arm(spec, rig, args.dry_run, args.realtime or "enforce")
+        except BaseException:
+            if viewer is not None:
+                viewer.close()
+            raise
         meta = {
             "robot": args.robot, "camera": args.camera, "model": str(model), "tracker": args.tracker,
             "rig_config": str(rig.path) if rig else None, "T_c_o_init": init.tolist(), "replay_speed": speed,
@@ -118,12 +126,23 @@ def _run_real(args: argparse.Namespace) -> int:
             f"{cfg.rate_hz:.0f} Hz, k = {cfg.stiffness}, {cfg.duration_s} s"
         )
         try:
-            result = run_real_loop(arm, source, tracker, cfg, desired, progress=print, meta=meta)
+            with viewing(viewer, tracker, source) as (events, on_cycle):
+                result = run_real_loop(
+                    arm, events, tracker, cfg, desired, progress=print, meta=meta, on_cycle=on_cycle
+                )
         finally:
             arm.close()
     finally:
         source.close()
-    summary = summarize(result, gt=(rec.gt_t_us, rec.gt_T) if rec is not None else None)
+    return report_real(result, out, gt=(rec.gt_t_us, rec.gt_T) if rec is not None else None)
+
+
+def report_real(result: Any, out: Path, gt: tuple[np.ndarray, np.ndarray] | None = None) -> int:
+    """Write a real run's outputs into ``out``, print its summary and return the exit code: 0 when
+    it ended normally, 130 on Ctrl-C, 1 when its watchdog or an error stopped it."""
+    from evservo.realloop import summarize, write_outputs
+
+    summary = summarize(result, gt=gt)
     paths = write_outputs(result, out, summary)
     print_real_summary(summary)
     print(f"figure: {paths['motion']}\nsummary: {paths['summary']}\nlog: {paths['log']}")
@@ -152,6 +171,7 @@ def print_real_summary(s: dict) -> None:
         lim = ", ".join(f"{k} {v}" for k, v in g["limited"].items())
         verb = "logged (dry run)" if g["dry_run"] else "sent"
         print(f"arm: {g['commands']} commands {verb}; limited: {lim}; {g['halts']} stops")
+    from evservo.runtime.watchdog import describe_spell
+
     for w in s["watchdog"]:
-        print(f"watchdog: {w['reason']}; last pose {w['last_pose_s']:.3f} s, braking from {w['start_s']:.3f} s, "
-              f"at rest {'never' if w['zero_s'] is None else format(w['zero_s'], '.3f')} s")  # fmt: skip
+        print(describe_spell(w))

@@ -17,6 +17,7 @@ _WHERE = {
     "solve_joint_velocities": "ik", "KinematicArm": "kinematic", "PANDA": "limits", "UR5E": "limits",
     "JointLimits": "limits", "GateRecord": "safety", "SafetyGate": "safety", "Workspace": "safety",
     "SimArm": "sim_arm", "UrArm": "ur", "RobotSpec": "open", "open_arm": "open", "parse_robot": "open",
+    "TwistSink": "twist_sink",
 }  # fmt: skip
 
 __all__ = [
@@ -34,6 +35,7 @@ __all__ = [
     "RobotSpec",
     "SafetyGate",
     "SimArm",
+    "TwistSink",
     "UrArm",
     "Workspace",
     "load_rig_config",
@@ -55,6 +57,7 @@ if TYPE_CHECKING:
     from evservo.robots.open import RobotSpec, open_arm, parse_robot
     from evservo.robots.safety import GateRecord, SafetyGate, Workspace
     from evservo.robots.sim_arm import SimArm
+    from evservo.robots.twist_sink import TwistSink
     from evservo.robots.ur import UrArm
 
 

@@ -92,8 +92,10 @@ def play(path: str | Path, topic: str, rate: float = 1.0, packet_us: int = 1000,
             msg.events = encoder.encode(np.ascontiguousarray(ev))
             pub.publish(msg)
             seq += 1
-        # Reliable delivery drains before the publisher (and its transient-local history) goes away.
-        pub.wait_for_all_acked(rclpy.duration.Duration(seconds=10.0))
+        # Reliable delivery drains before the publisher (and its transient-local history) goes away; a
+        # subscriber still matching (a slow start) gets the history meanwhile.
+        if not pub.wait_for_all_acked(rclpy.duration.Duration(seconds=max(10.0, wait_s))):
+            raise RuntimeError(f"{topic}: the subscribers did not acknowledge all {seq} packets within {wait_s:g} s")
         return seq
     finally:
         node.destroy_node()
@@ -111,8 +113,10 @@ def track(
     events_topic: str = "/event_camera/events", camera_info_topic: str = "/event_camera/camera_info",
     pose_topic: str = "/evservo/pose", status_topic: str = "/evservo/status", camera_frame: str = "camera",
     object_frame: str = "object", solver: str = "edft+", batch_us: int = 1000, idle_exit_s: float | None = None,
+    viewer: Any = None,
 ) -> int:  # fmt: skip
     """Run the tracking node until Ctrl-C, or until ``idle_exit_s`` without packets once some came.
+    ``viewer``: a :class:`~evservo.viewer.RerunViewer` shown every update (the caller closes it).
     Returns the number of poses published."""
     rclpy = _ros()
     from event_camera_msgs.msg import EventPacket
@@ -169,6 +173,8 @@ def track(
                     ev, _, t_max = events.clamp_time(ev, t_max)
                     est = trk.update(ev)
                     _publish(est, end)
+                    if viewer is not None:
+                        viewer.track(end, ev, est, trk)
                     end += batch_us
             except BaseException as e:  # reported by the main thread
                 failure.append(e)

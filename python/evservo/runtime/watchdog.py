@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,3 +46,17 @@ def spells_from_flags(
             )
         )
     return out
+
+
+def describe_spell(spell: Mapping[str, object]) -> str:
+    """One line for a spell as stored in ``summary.json`` (a ``WatchdogSpell`` as a dict)."""
+
+    def at(key: str, missing: str) -> str:
+        v = spell.get(key)
+        return missing if v is None else f"{v:.3f} s"
+
+    return (
+        f"watchdog: {spell.get('reason', 'no fresh pose')}; last pose {at('last_pose_s', '?')}, "
+        f"braking from {at('start_s', '?')}, at rest {at('zero_s', 'never')}, "
+        f"servoing again {at('end_s', 'never')}"
+    )
