@@ -199,9 +199,10 @@ class Tracker:
         """Synchronous: ingest the batch, run one cycle (1 LM + N search, or N+1 steps), return the estimate."""
         return self._core.update(as_event_cd(events))
 
-    def ingest(self, events: np.ndarray) -> None:
-        """Synchronous: ingest a batch without solving."""
-        self._core.ingest(as_event_cd(events))
+    def ingest(self, events: np.ndarray, thin: bool = False) -> None:
+        """Synchronous: ingest a batch without solving; with ``thin``, keep the uniform fraction that
+        :meth:`push` would keep under overload (``ingest_core_share`` / ``max_ingest_rate``)."""
+        self._core.ingest(as_event_cd(events), thin=thin)
 
     def step(self, n: int = 1) -> Estimate:
         """Synchronous: run ``n`` single updates (one LM or one search step each) on the current events."""

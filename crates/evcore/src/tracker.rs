@@ -1189,6 +1189,12 @@ impl TrackerCore {
         self.ingest.push(events, false)
     }
 
+    /// As [`Self::ingest`], but thinned under overload exactly as [`ThreadedTracker::push`] does
+    /// (for a simulated producer that must behave like the threaded tracker's).
+    pub fn ingest_thinned<E: EventRecords + ?Sized>(&mut self, events: &E) -> Result<()> {
+        self.ingest.push(events, true)
+    }
+
     /// Forget every event and the time line; the pose stays. After this, time may start anew
     /// (e.g. a camera that restarted its clock, or a batch of corrupt time stamps).
     pub fn reset_events(&mut self) {

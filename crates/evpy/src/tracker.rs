@@ -272,10 +272,19 @@ impl PyTracker {
         })
     }
 
-    /// Ingest one EVENT_CD batch (every event) without stepping.
-    fn ingest(&self, py: Python<'_>, events: EventArray<'_>) -> PyResult<()> {
+    /// Ingest one EVENT_CD batch without stepping: every event, or with `thin` the fraction the
+    /// ingest limit allows under overload, as push() does.
+    #[pyo3(signature = (events, thin=false))]
+    fn ingest(&self, py: Python<'_>, events: EventArray<'_>, thin: bool) -> PyResult<()> {
         let ev = records(&events)?;
-        self.with_core(py, |core| core.ingest(ev))?.map_err(to_py)
+        self.with_core(py, |core| {
+            if thin {
+                core.ingest_thinned(ev)
+            } else {
+                core.ingest(ev)
+            }
+        })?
+        .map_err(to_py)
     }
 
     /// Run `n` single updates (each one LM or one search step) on the current events.

@@ -85,8 +85,9 @@ class EpisodeConfig:
     ``tracker``: solver (``edft+``, ``edopts``, ``edft``).
     ``cost_model``: ``measured`` charges the tracker's compute time to the simulated clock (CPU time
     of the calling thread: the solver is single-threaded, and on a shared machine wall time would
-    also charge whatever other processes took); ``fixed`` charges ``lm_cost_s`` per LM step and
-    ``search_cost_s`` per search step (reproducible).
+    also charge whatever other processes took); ``fixed`` charges ``lm_cost_s`` per LM step,
+    ``search_cost_s`` per search step and ``ingest_event_cost_s`` per ingested event (reproducible).
+    Ingest is charged to the producer's timeline, the steps to the solver's (:class:`ClockedTracker`).
     ``dropout_s``: ``(start, end)`` window whose events are lost (sensor or link failure).
     ``lost_pos_m``, ``lost_rot_deg``: tracking counts as lost, and the episode ends, once the estimate
     is this far from the truth at the estimate's time.
@@ -127,6 +128,7 @@ class EpisodeConfig:
     cost_model: str = "measured"
     lm_cost_s: float = 0.001
     search_cost_s: float = 0.0004
+    ingest_event_cost_s: float = 25e-9
     event_source: str = "edges"
     sensing_latency_s: float = 0.0035
     control_period_s: float = 0.002
@@ -175,6 +177,8 @@ class EpisodeConfig:
             raise ValueError(f"duration must be at most {MAX_DURATION_S:g} s (per-tick record), got {self.duration_s}")
         if not (self.lm_cost_s > 0 and self.search_cost_s > 0 and self.sensing_latency_s >= 0):
             raise ValueError("step costs must be > 0 and the latency >= 0")
+        if not self.ingest_event_cost_s >= 0:
+            raise ValueError(f"ingest_event_cost_s must be >= 0, got {self.ingest_event_cost_s}")
         for name in ("control_period_s", "ur_period_s", "panda_period_s"):
             if round(getattr(self, name) * 1e6) % TICK_US or getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be a positive multiple of 1 ms")
@@ -206,10 +210,10 @@ class EpisodeResult:
     command was cut to what the Panda can deliver. ``joint_speed_ratio``: the Panda's fastest joint
     against its velocity limit (1 = at the limit). ``ended``: ``"duration"``,
     ``"tracking lost"`` or ``"arm error: …"``. ``steps``: tracker steps published, per kind.
-    ``busy_s``: tracker time charged to the clock. ``lost``: the tracker's flag on that estimate;
-    ``holding``: the loop was not servoing on it (:class:`~evservo.control.hold.LossHold` holding,
-    searching or ramping back in); ``seen``: the object's events reached the tracker and at least half
-    of it was in the image.
+    ``busy_s``: solver time charged to the clock; ``ingest_busy_s``: producer (ingest) time charged.
+    ``lost``: the tracker's flag on that estimate; ``holding``: the loop was not servoing on it
+    (:class:`~evservo.control.hold.LossHold` holding, searching or ramping back in); ``seen``: the
+    object's events reached the tracker and at least half of it was in the image.
     """
 
     config: EpisodeConfig
@@ -234,6 +238,7 @@ class EpisodeResult:
     lost: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     holding: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     seen: np.ndarray = field(default_factory=lambda: np.ones(0, bool))
+    ingest_busy_s: float = 0.0
 
     @property
     def T_c_o_true(self) -> np.ndarray:
@@ -242,52 +247,79 @@ class EpisodeResult:
 
 
 class ClockedTracker:
-    """The synchronous :class:`~evservo.tracking.Tracker` run on the simulated clock (µs).
+    """The synchronous :class:`~evservo.tracking.Tracker` run on the simulated clock (µs), with the
+    threaded tracker's two timelines.
 
+    On a rig, ingest (validation, undistortion, the SCARF insert: ``Tracker.push``) runs on the
+    producer's core, in parallel with the solver, which only reads the active set. So each batch is
+    ingested on a *producer* timeline: it starts when it has arrived and the previous batch is done,
+    and takes its own cost there. The solver's timeline is charged only its steps; a step sees every
+    batch whose ingest has started by the step's start (SCARF is written in place, so a batch being
+    ingested is already partly visible to a concurrent reader). With ``thin``, the producer thins
+    each batch under overload as ``Tracker.push`` does (within ``ingest_core_share`` of its core, by
+    measured costs), so it keeps up with the stream and the solver sees fresh events; without, a
+    producer slower than the stream falls behind.
     Batches are queued with their arrival time; :meth:`advance` runs the steps whose start time has
-    come, charging each its cost, and :meth:`latest` returns what had been published by a given time.
+    come, and :meth:`latest` returns what had been published by a given time.
     """
 
-    def __init__(self, tracker: Tracker, cost: Callable[[str, float], float]) -> None:
-        """``cost(kind, cpu_s)``: seconds to charge for a step of ``kind`` ("lm"/"search") that took
-        ``cpu_s`` of this thread's CPU time (ingest included)."""
+    def __init__(self, tracker: Tracker, cost: Callable[[str, float, int], float], thin: bool = True) -> None:
+        """``cost(kind, cpu_s, n_events)``: seconds to charge for ``kind`` "lm" or "search" (a solver
+        step) or "ingest" (a batch of ``n_events`` on the producer), which took ``cpu_s`` of this
+        thread's CPU time."""
         self.tracker = tracker
         self.cost = cost
+        self.thin = thin
         self.cycle_len = tracker.cycle_len
         self.free_us = 0  # when the solver can start its next step
+        self.producer_free_us = -(2**62)  # when the producer can start ingesting the next batch
         self._queue: deque[tuple[int, np.ndarray]] = deque()
         self._pending: deque[tuple[int, _evcore.Estimate]] = deque()
         self._latest = tracker.step(0)
         self._steps_without_events = self.cycle_len  # nothing to do before the first batch
         self.steps = {"lm": 0, "search": 0}
-        self.busy_us = 0
+        self.busy_us = 0  # solver time charged
+        self.ingest_busy_us = 0  # producer time charged
 
     def deliver(self, arrival_us: int, events: np.ndarray) -> None:
         """Queue a batch that reaches the tracker at ``arrival_us`` (non-decreasing over calls)."""
         if len(events):
             self._queue.append((arrival_us, events))
 
+    def _next_ingest_us(self) -> int | None:
+        """When the producer starts ingesting the next queued batch (None: nothing queued)."""
+        return max(self._queue[0][0], self.producer_free_us) if self._queue else None
+
+    def _ingest_until(self, now_us: int) -> bool:
+        """Ingest, on the producer's timeline, every batch whose ingest starts by ``now_us``."""
+        ingested = False
+        while (start := self._next_ingest_us()) is not None and start <= now_us:
+            events = self._queue.popleft()[1]
+            started = time.thread_time()
+            self.tracker.ingest(events, thin=self.thin)
+            cost_us = max(1, round(self.cost("ingest", time.thread_time() - started, len(events)) * 1e6))
+            self.producer_free_us = start + cost_us
+            self.ingest_busy_us += cost_us
+            ingested = True
+        return ingested
+
     def advance(self, now_us: int) -> None:
         """Run every step that starts by ``now_us``."""
         while True:
             if self._steps_without_events >= self.cycle_len:
                 # Nothing new since a full cycle: the field cannot change, wait for the next batch.
-                if not self._queue or self._queue[0][0] > now_us:
+                start = self._next_ingest_us()
+                if start is None or start > now_us:
                     self.free_us = max(self.free_us, now_us)
                     return
-                self.free_us = max(self.free_us, self._queue[0][0])
+                self.free_us = max(self.free_us, start)
             if self.free_us > now_us:
                 return
-            started = time.thread_time()
-            arrived = []
-            while self._queue and self._queue[0][0] <= self.free_us:
-                arrived.append(self._queue.popleft()[1])
-            if arrived:
-                self.tracker.ingest(np.concatenate(arrived))
+            if self._ingest_until(self.free_us):
                 self._steps_without_events = 0
+            started = time.thread_time()
             est = self.tracker.step(1)
-            cpu = time.thread_time() - started
-            cost_us = max(1, round(self.cost(est.step, cpu) * 1e6))
+            cost_us = max(1, round(self.cost(est.step, time.thread_time() - started, 0) * 1e6))
             self.free_us += cost_us
             self.busy_us += cost_us
             self._steps_without_events += 1
@@ -361,10 +393,11 @@ def _view_test(camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, seed: int) 
     return in_view
 
 
-def _cost_model(config: EpisodeConfig) -> Callable[[str, float], float]:
+def _cost_model(config: EpisodeConfig) -> Callable[[str, float, int], float]:
     if config.cost_model == "measured":
-        return lambda _kind, cpu_s: cpu_s
-    return lambda kind, _cpu_s: config.lm_cost_s if kind == "lm" else config.search_cost_s
+        return lambda _kind, cpu_s, _n: cpu_s
+    fixed = {"lm": config.lm_cost_s, "search": config.search_cost_s, "ingest": 0.0}
+    return lambda kind, _cpu_s, n: fixed[kind] + (n * config.ingest_event_cost_s if kind == "ingest" else 0.0)
 
 
 def run_episode(
@@ -386,7 +419,8 @@ def run_episode(
                    frontend=cfg.frontend, seed=cfg.seed, reacquire=cfg.reacquire or cfg.start_lost)  # fmt: skip
     arms = ArmMeshes(scene) if cfg.render_arms else None
     source = _primed_source(cfg, camera, T_c_o0, core, arms)
-    tracker = ClockedTracker(core, _cost_model(cfg))
+    # Thinning decides by measured costs: the fixed cost model keeps every event to stay reproducible.
+    tracker = ClockedTracker(core, _cost_model(cfg), thin=cfg.cost_model == "measured")
     traj = trajectories.make_trajectory(cfg.trajectory, speed_mps=cfg.speed_mps, rot_rate_dps=cfg.rot_rate_dps)
     ur = DelayedArm(scene.ur, cfg.ur_latency_s)
     panda = DelayedArm(scene.panda, cfg.panda_latency_s)
@@ -521,6 +555,7 @@ def run_episode(
         lost_at_s=lost_at,
         steps=dict(tracker.steps),
         busy_s=tracker.busy_us * 1e-6,
+        ingest_busy_s=tracker.ingest_busy_us * 1e-6,
         wall_s=time.perf_counter() - wall0,
         events=n_events,
     )
@@ -627,6 +662,7 @@ def summarize(result: EpisodeResult) -> dict:
         "tracker_rate_hz": n_steps / sim_s if sim_s else 0.0,
         "tracker_steps": r.steps,
         "tracker_busy_fraction": r.busy_s / sim_s if sim_s else 0.0,
+        "ingest_busy_fraction": r.ingest_busy_s / sim_s if sim_s else 0.0,
         "pose_age_mean_ms": float(np.mean(r.t_s - r.est_t_s) * 1e3) if n else float("nan"),
         "events": r.events,
         "watchdog": [asdict(w) for w in r.watchdog_events],
