@@ -81,3 +81,18 @@ def test_field_scale_keeps_the_coarsest_level_readable(extent_px):
     assert 4.0 <= tau <= 10.0 and (tau <= extent_px / 8.0 or tau == 4.0)
     if extent_px >= 160:
         assert (levels, tau) == (3, 10.0)  # the paper's settings for objects of ordinary size
+
+
+@pytest.fixture(scope="module")
+def can_edge_rows():
+    """The labelled can at Z = 0.6 m with a third of it out of view (right border), 0.2 s."""
+    case = objects.Case("can", 0.6, "edge", duration_s=0.2)
+    events, gt_t, gt_T = objects.render_case(case, CAM)
+    return {s: objects.track_case(case, CAM, events, gt_t, gt_T, s) for s in ("edft+", "edopts")}
+
+
+def test_partly_out_of_view_can_meets_the_target_and_lm_does_not_drift(can_edge_rows):
+    row = can_edge_rows["edft+"]
+    assert row["visible_fraction"] < 0.99  # the case is really partial
+    assert row["pos_rms_mm"] <= 5.0 and row["rot_rms_deg"] <= 2.0, row
+    assert row["rot_rms_deg"] <= can_edge_rows["edopts"]["rot_rms_deg"] + 0.5, can_edge_rows

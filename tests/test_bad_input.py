@@ -81,6 +81,13 @@ def test_corrupt_bench_summary_is_named(tmp_path, capsys):
     assert err.startswith("evservo: error:") and str(bad) in err and "delete it" in err
 
 
+def test_bench_cache_outside_the_objects_suite_is_refused(tmp_path, capsys):
+    assert main(["bench", "--suite", "latency", "--cache", str(tmp_path / "c"), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("evservo: error:") and "--cache applies to the objects suite only" in err
+    assert not (tmp_path / "c").exists()
+
+
 def _events(**overrides):
     ev = np.zeros(3, dtype=[("x", "f8"), ("y", "f8"), ("p", "i8"), ("t", "i8")])
     ev["x"], ev["y"], ev["p"], ev["t"] = [1, 2, 3], [1, 1, 1], [0, 1, 1], [10, 20, 30]

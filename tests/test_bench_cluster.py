@@ -108,6 +108,35 @@ def test_config_hash_follows_configuration_and_code():
         paper.plan(quick=True, events="frames")
 
 
+def test_code_version_ignores_the_suites_and_the_commands(tmp_path, monkeypatch):
+    """Editing a report or a command keeps finished episodes reusable; editing what an episode runs
+    does not."""
+    import evservo
+    import evservo._evcore as core
+
+    for rel in ("__init__.py", "control/law.py", "bench/paper.py", "commands/demo.py", "_evcore.so"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(f"# {rel}\n")
+    monkeypatch.setattr(evservo, "__file__", str(tmp_path / "__init__.py"))
+    monkeypatch.setattr(core, "__file__", str(tmp_path / "_evcore.so"))
+    code = paper.code_version()
+    for rel in ("bench/paper.py", "commands/demo.py"):
+        (tmp_path / rel).write_text("# edited\n")
+        assert paper.code_version() == code, rel
+    (tmp_path / "control/law.py").write_text("# edited\n")
+    assert paper.code_version() != code
+
+
+def test_the_rows_issue_14_is_about_run_first():
+    rows = [(sec, paper.episode_key(cfg), cfg) for sec, cfg in paper.plan(quick=False)]
+    unique = {key: cfg for _, key, cfg in rows}
+    order = sorted(unique.items(), key=lambda item: paper._priority(rows, *item))
+    assert [cfg.seed for _, cfg in order[:3]] == [1, 2, 3]
+    assert all(cfg.trajectory == "trans-rot" and cfg.distance_m == 0.6 and cfg.feedforward for _, cfg in order[:3])
+    ff_rows = {key for sec, key, _ in rows if sec == "feedforward"}
+    assert {key for key, _ in order[: len(ff_rows)]} == ff_rows
+
+
 def test_ctrl_c_cancels_the_clusters_tasks(cluster):
     address, _ = cluster
     code = (

@@ -247,3 +247,30 @@ def test_catch_up_after_an_arm_that_could_not_follow_stays_within_the_image_rate
         assert gap_freed > 0.25 and gaps[-1] < gap_freed - 0.2, (gap_freed, gaps[-1])
     assert peak[max_rate] <= 1.1 * max_rate, peak
     assert peak[None] > 3 * max_rate, peak
+
+
+def test_twist_estimator_follows_a_sinusoid_without_delay():
+    """The constant-acceleration estimator's twist has no first-order delay: on the ``trans`` motion's
+    0.4 Hz sinusoid (0.3 m/s peak) its velocity trails the truth by under 2 ms and its error stays
+    under 3 % of the peak, where a constant-velocity alpha–beta filter of the same 5.5 Hz bandwidth
+    trails by 2/ω = 58 ms. Rotation is estimated alike (0.5 rad/s peak about z)."""
+    from evservo.control import TwistEstimator
+    from evservo.runtime.metrics import estimate_lag_s
+
+    est = TwistEstimator(bandwidth_hz=5.5)
+    w, A = 2.5, 0.12
+    ts = np.arange(0.0, 4.0, 1.0 / 1500)
+    v_true, v_est = [], []
+    for t in ts:
+        T = np.eye(4)
+        T[:3, 3] = [A * np.sin(w * t), 0.0, 0.9]
+        T[:3, :3] = rotmat([0.0, 0.0, 0.2 * np.sin(w * t)])
+        est.update(t, T)
+        v_true.append([A * w * np.cos(w * t), 0.2 * w * np.cos(w * t)])
+        v_est.append([est.twist_w[0], est.twist_w[5]])
+    settled = ts > 1.0
+    v_true, v_est = np.array(v_true)[settled], np.array(v_est)[settled]
+    for i in range(2):
+        lag = estimate_lag_s(ts[settled], v_true[:, i : i + 1], v_est[:, i : i + 1])
+        assert abs(lag) < 0.002, (i, lag)
+        assert np.max(np.abs(v_est[:, i] - v_true[:, i])) < 0.03 * np.max(np.abs(v_true[:, i]))

@@ -48,7 +48,7 @@ def test_edft_plus_holds_tracking_through_the_episode(with_and_without_ff):
 def test_feedforward_removes_most_of_the_lag(with_and_without_ff):
     off, on = with_and_without_ff[False], with_and_without_ff[True]
     assert on["completed"]
-    assert on["lag_s"] <= 0.05, on["lag_s"]
+    assert on["lag_s"] <= 0.02, on["lag_s"]  # issue 14: the predictor cancels the loop latency (measured 0.011 s)
     assert on["servo_pos_rms_mm"] <= 0.5 * off["servo_pos_rms_mm"], (on["servo_pos_rms_mm"], off["servo_pos_rms_mm"])
     assert on["gt_servo_pos_rms_mm"] <= 0.5 * off["gt_servo_pos_rms_mm"]
 

@@ -109,3 +109,24 @@ def test_bad_input_exits_2_with_a_message(args, tmp_path, capsys):
     err = capsys.readouterr().err
     # One error line (argparse puts its usage before it for a bad choice), never a traceback.
     assert err.splitlines()[-1].startswith("evservo: error:") and "Traceback" not in err
+
+
+def test_track_without_a_start_pose_starts_lost_and_searches(trans_rot, tmp_path, capsys):
+    """A file that carries no ground truth and no --init-pose: the tracker starts lost (issue 12 item 4)
+    instead of the command refusing; whether and when it locks is reported (``first_lock_s``)."""
+    rec = load_recording(trans_rot)
+    ev = next(io.open_events(trans_rot, delta_t_us=20_000))
+    bare = tmp_path / "bare.npz"
+    np.savez(bare, events=ev, width=rec.camera.width, height=rec.camera.height)
+    c = rec.camera
+    cam = tmp_path / "c.json"
+    cam.write_text(json.dumps(dict(width=c.width, height=c.height, fx=c.fx, fy=c.fy, cx=c.cx, cy=c.cy)))
+    out = tmp_path / "o"
+    args = ["track", str(bare), "--model", "box", "--camera", str(cam), "--max-seconds", "0.004", "--quiet"]
+    assert main([*args, "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["started_lost"] and s["n_updates"] == 5 and s["gt_track_pos_rms_mm"] is None
+    lost = np.loadtxt(out / "poses.csv", delimiter=",", skiprows=1)[:, 8]
+    assert lost[0] == 1  # no pose to trust before the search has found the object
+    assert s["first_lock_s"] is None or s["first_lock_s"] == pytest.approx(np.argmin(lost) * 1e-3, abs=1.5e-3)
+    assert "starts lost and searches" in capsys.readouterr().out

@@ -125,6 +125,13 @@ def test_panda_resolves_camera_twist_within_joint_limits(scene):
         qds = np.array(qds)
         assert np.all(np.abs(qds) <= PANDA.qd_max + 1e-12)
         assert np.all(np.abs(np.diff(qds, axis=0)) <= PANDA.qdd_max * h * (1 + 1e-9))
+        # Jerk within the datasheet's limit, except where a joint arrives at its velocity limit (safety
+        # wins: the acceleration drops to zero there at once).
+        jerk = np.abs(np.diff(qds, 2, axis=0)) / h**2
+        free = np.abs(qds) < PANDA.qd_max - 1e-9
+        free = free[:-2] & free[1:-1] & free[2:]
+        assert np.all(jerk <= np.where(free, PANDA.qddd_max * (1 + 1e-6), np.inf))
+        assert np.any(jerk[free] > 0.5 * PANDA.qddd_max.min())  # the limit is approached: it does bite
         if achievable:
             np.testing.assert_allclose(tw[-1], v_c, atol=0.02 * np.linalg.norm(v_c))
         else:
@@ -146,6 +153,15 @@ def test_qp_is_exact_when_feasible_and_brakes_before_position_limit():
     lb, ub = joint_velocity_bounds(q, qd, 0.002, PANDA)
     assert ub[3] == pytest.approx(np.sqrt(2 * 12.5 * 0.001))
     assert lb[3] == ub[3]  # braking harder than the acceleration limit allows: safety wins
+    # Joint 4 at rest accelerating at 10 rad/s² (jerk limit 6250 rad/s³): over 2 ms its acceleration can
+    # fall by 12.5 rad/s² at most, to −2.5, so it cannot slow down by more than 2.5 · 0.002 = 0.005 rad/s;
+    # without the acceleration now, the acceleration window alone allows ±12.5 · 0.002 = 0.025 rad/s.
+    q[3] = -1.5
+    qd[3] = 0.0
+    lb, ub = joint_velocity_bounds(q, qd, 0.002, PANDA, qdd=np.array([0, 0, 0, 10.0, 0, 0, 0]))
+    assert (lb[3], ub[3]) == pytest.approx((-0.005, 0.025))
+    lb, ub = joint_velocity_bounds(q, qd, 0.002, PANDA)
+    assert (lb[3], ub[3]) == pytest.approx((-0.025, 0.025))
 
 
 def servo_run(scene, feedforward: bool, duration_s: float = 4.0) -> np.ndarray:

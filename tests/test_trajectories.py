@@ -19,5 +19,8 @@ def test_every_kind_starts_at_the_start_pose_and_peaks_at_the_requested_speed(ki
                                       .as_rotvec(), axis=1)) / 1e-3  # fmt: skip
     if kind == "trans-rot":
         assert 30.0 <= rates.max() <= 30.0 * np.sqrt(1 + 0.8**2 + 0.78**2) * 1.05
+    elif kind == "leave-return":  # turns 25° on its way back, at half speed over √(1.2² + 0.1²)·LEAVE_M
+        t_back = 1.5 * np.hypot(1.2 * trajectories.LEAVE_M, 0.05) / 0.15
+        assert rates.max() == pytest.approx(1.5 * 25.0 / t_back, rel=1e-2)
     else:
         assert rates.max() == 0.0

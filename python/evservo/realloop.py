@@ -26,13 +26,20 @@ after ``now`` and never before the previous one.
 Sequence: the tracker starts from ``T_c_o_init``; once the first events have reached it (within
 ``start_timeout_s``) it tracks for ``settle_s`` while the arm stays still, and must then have
 published a pose the tracker itself does not flag as lost. Then servoing starts:
-the desired pose ``T_c_o_des`` is the tracked pose at that instant unless given. Servoing ends, with
-the commanded twist braked to zero at the acceleration limit and then an explicit arm stop, on:
+the desired pose ``T_c_o_des`` is the tracked pose at that instant unless given. With ``search`` (a
+tracker started without a pose) the loop instead starts at rest and waits for the tracker to lock;
+the desired pose is captured then, as in the paper.
+
+While the tracker flags the object lost, the loop holds (:class:`~evservo.control.hold.LossHold`, as
+the simulated bench does): no pose reaches the controller, the camera brakes to rest at the
+acceleration limit and stays there, the desired pose is kept; once the tracker has locked again the
+controller restarts from the new pose and its command is ramped in. Servoing ends, with the
+commanded twist braked to zero at the acceleration limit and then an explicit arm stop, on:
 
 * ``duration_s`` reached, or the replayed recording ended — a normal end (``completed``);
-* **watchdog**: no fresh pose for ``stale_after_s`` (tracker stalled, no events, or the tracker flags
-  the object lost: a lost estimate is not used), or a pose **jump** refused by the controller (farther
-  than ``max_jump_m``/``max_jump_rad`` from the prediction). Unlike the simulated bench, the real loop
+* **watchdog**: no fresh pose for ``stale_after_s`` while the tracker does not flag the object lost
+  (tracker stalled, no events), or a pose **jump** refused by the controller (farther than
+  ``max_jump_m``/``max_jump_rad`` from the prediction). Unlike the simulated bench, the real loop
   does not resume after a watchdog spell: it brakes and stops, and reports the spell;
 
 and with an immediate arm stop on an exception (lost link to the arm, camera failure) or Ctrl-C.
@@ -62,12 +69,14 @@ import numpy as np
 
 from evservo import _evcore, events, geometry
 from evservo.control import Pbvs
+from evservo.control.hold import LossHold
 from evservo.geometry import pose_errors, rotation_from_first_rad
 from evservo.limits import CartesianLimits
 from evservo.outputs import make_out_dir
 from evservo.robots.base import Arm, shift_twist
 from evservo.robots.gated import GatedArm
 from evservo.robots.safety import SafetyGate
+from evservo.runtime.loss import loss_metrics, wrong_pose
 from evservo.runtime.metrics import rms
 from evservo.runtime.record import CycleRecord
 from evservo.runtime.report import plot_motion, write_log, write_summary
@@ -102,7 +111,8 @@ class RealLoopConfig:
     ``max_brake_s``: longest braking before the arm is stopped outright.
     ``speed``: sensor seconds per host second (the replay speed; 1 for a live camera).
     ``log_rate_hz``: rows per second in ``log.csv``. ``dry_run``: only recorded in the summary (the
-    arm itself must be opened in dry run).
+    arm itself must be opened in dry run). ``search``: the tracker was started without a pose: servo
+    from a search (the module docstring) instead of requiring a lock after ``settle_s``.
     """
 
     rate_hz: float = 500.0
@@ -118,6 +128,7 @@ class RealLoopConfig:
     speed: float = 1.0
     log_rate_hz: float = 100.0
     dry_run: bool = False
+    search: bool = False
 
     def __post_init__(self) -> None:
         positive = dict(
@@ -149,7 +160,9 @@ class RealLoopResult:
     """What happened. Per control cycle (index k, time ``t_s[k]`` since servo start): ``T_w_c`` the
     camera pose, ``T_c_o_est`` the newest tracker pose and ``est_t_s`` its host time, ``v_cmd_w`` the
     controller's camera twist (world frame), ``v_sent_w`` the end-effector twist the gate let through,
-    ``state`` the controller's state, ``cycle_s`` the cycle's compute time, ``late_s`` how late it began,
+    ``state`` the controller's state (``"holding"``, ``"searching"`` while the loop holds for a lost
+    object), ``lost`` the tracker's flag, ``holding`` the loop was not servoing on the tracker (holding,
+    searching or ramping back in), ``cycle_s`` the cycle's compute time, ``late_s`` how late it began,
     ``est_t_us`` the pose's time stamp on the sensor clock.
     """
 
@@ -162,6 +175,8 @@ class RealLoopResult:
     v_cmd_w: np.ndarray
     v_sent_w: np.ndarray
     state: list[str]
+    lost: np.ndarray
+    holding: np.ndarray
     cycle_s: np.ndarray
     late_s: np.ndarray
     est_t_us: np.ndarray
@@ -278,10 +293,11 @@ def run_real_loop(
         limits=gate.limits if gate is not None else CartesianLimits(), stale_after_s=cfg.stale_after_s,
         max_jump_m=cfg.max_jump_m, max_jump_rad=cfg.max_jump_rad,
     )  # fmt: skip
+    hold = LossHold(pbvs)
     rec = CycleRecord(
         cfg.max_cycles(),
         t_s=(), T_w_c=(4, 4), T_c_o_est=(4, 4), est_t_s=(), v_cmd_w=(6,), v_sent_w=(6,), cycle_s=(), late_s=(),
-        est_t_us=((), np.int64),
+        est_t_us=((), np.int64), lost=((), bool), holding=((), bool),
     )  # fmt: skip
     states: list[str] = []
     spells: list[WatchdogSpell] = []
@@ -306,10 +322,15 @@ def run_real_loop(
         est = _settle(tracker, pump, cfg, clock, say)
         t0 = clock()
         feed = _PoseFeed(tracker, pump, t0, est)
-        pbvs.start(arm.T_w_e() @ T_e_c, est.T_c_o, t_s=feed.t_s)
-        des = est.T_c_o.copy() if T_c_o_des is None else geometry.as_pose(T_c_o_des, "T_c_o_des")
-        pbvs.set_desired(des)
-        if T_c_o_des is not None:
+        given = None if T_c_o_des is None else geometry.as_pose(T_c_o_des, "T_c_o_des")
+        if est.lost:  # only with cfg.search: hold still until the tracker locks
+            hold.search(given)
+            say("searching: the arm holds still until the tracker locks on the object")
+        else:
+            hold.start(arm.T_w_e() @ T_e_c, est.T_c_o, t_s=feed.t_s)
+            des = est.T_c_o.copy() if given is None else given
+            hold.set_desired(des)
+        if T_c_o_des is not None and not est.lost:
             d_mm = geometry.translation_error_m(des, est.T_c_o) * 1e3
             d_deg = np.rad2deg(geometry.rotation_error_rad(des, est.T_c_o))
             say(f"desired pose is {d_mm:.1f} mm / {d_deg:.1f} deg from the tracked one: the arm will move to it")
@@ -325,7 +346,7 @@ def run_real_loop(
                 raise RuntimeError(f"event source failed: {pump.error}") from pump.error
             if stopping is None and (t >= cfg.duration_s or pump.ended):
                 stopping, stop_t = ("duration" if t >= cfg.duration_s else "end of recording"), t
-                pbvs.stop()
+                hold.stop()
             # -- pose and control ---------------------------------------------------------
             pose, p_t = feed.poll(t)
             T_w_e = arm.T_w_e()
@@ -333,27 +354,28 @@ def run_real_loop(
             p_e, p_c = T_w_e[:3, 3], T_w_c[:3, 3]
             # The twist in force (what the gate let through), as the controller's velocity state.
             v_c_now = shift_twist(gate.last_sent, p_e, p_c) if gate is not None else v_cmd
-            cmd = pbvs.update(t, T_w_c, v_c_now, pose, p_t)
-            if cmd.state == "ok" and pose is not None:
+            cmd = hold.update(t, T_w_c, v_c_now, pose, p_t, feed.lost)
+            ctrl = cmd.pbvs  # None while holding for a lost object: the controller is not run
+            if ctrl is not None and ctrl.state == "ok" and pose is not None:
                 last_accepted_t = p_t
-            if stopping is None and (cmd.watchdog or cmd.state == "rejected"):
-                why = _watchdog_reason(cmd, feed.lost, cfg.stale_after_s)
+            if stopping is None and ctrl is not None and (ctrl.watchdog or ctrl.state == "rejected"):
+                why = _watchdog_reason(ctrl, cfg.stale_after_s)
                 stopping, stop_t = f"watchdog: {why}", t
                 spells.append(WatchdogSpell(t, last_accepted_t, None, None, why))
                 log.info("watchdog at %.3f s: %s; braking to a stop", t, why)
                 say(f"WATCHDOG at {t:.3f} s: {why}; braking to a stop")
-                pbvs.stop()
+                hold.stop()
             v_cmd = cmd.v_c_w
             arm.command_twist(shift_twist(v_cmd, p_c, p_e), period)
             done_t = clock()
             rec.add(
                 t_s=t, T_w_c=T_w_c, T_c_o_est=feed.T_c_o, est_t_s=feed.t_s, v_cmd_w=v_cmd, est_t_us=feed.t_us,
                 v_sent_w=gate.last_sent if gate is not None else shift_twist(v_cmd, p_c, p_e),
-                late_s=now - deadline, cycle_s=done_t - now,
+                late_s=now - deadline, cycle_s=done_t - now, lost=feed.lost, holding=cmd.mode != "servoing",
             )  # fmt: skip
-            states.append(cmd.state)
-            if on_cycle is not None:
-                on_cycle(t, T_w_c, des)
+            states.append(ctrl.state if ctrl is not None else cmd.mode)
+            if on_cycle is not None and hold.T_c_o_des is not None:  # no desired pose yet while searching
+                on_cycle(t, T_w_c, hold.T_c_o_des)
             if stopping is not None:
                 at_rest = not np.any(v_cmd)
                 if at_rest and spells and spells[-1].zero_s is None and stopping.startswith("watchdog"):
@@ -389,6 +411,7 @@ def run_real_loop(
             tracker_t1 = clock()
     recorded = rec.arrays()
     stats = tracker.stats()
+    des = des if des is not None else hold.T_c_o_des
     return RealLoopResult(
         config=cfg,
         T_c_o_des=des if des is not None else np.eye(4),
@@ -414,8 +437,9 @@ def run_real_loop(
 
 def _settle(tracker: Any, pump: _CameraPump, cfg: RealLoopConfig, clock: Callable[[], float], say: Callable) -> Any:
     """Wait for the first pose (up to ``start_timeout_s``), then track ``settle_s`` with the arm still;
-    return the tracker's estimate then. A camera (or a file being opened) takes a while to deliver its
-    first events, so the settle time counts from the first pose: a slow start is not a blind tracker."""
+    return the tracker's estimate then (which may be lost only with ``cfg.search``). A camera (or a
+    file being opened) takes a while to deliver its first events, so the settle time counts from the
+    first pose: a slow start is not a blind tracker."""
     say(f"waiting up to {cfg.start_timeout_s:.1f} s for the first events")
     _wait(clock, clock() + cfg.start_timeout_s, pump, lambda: pump.offset_s is not None and tracker.latest().seq > 0)
     if pump.offset_s is None or tracker.latest().seq == 0:
@@ -425,7 +449,7 @@ def _settle(tracker: Any, pump: _CameraPump, cfg: RealLoopConfig, clock: Callabl
     if pump.error is not None:
         raise pump.error
     est = tracker.latest()
-    if est.lost:
+    if est.lost and not cfg.search:
         raise TrackingError(
             f"the tracker lost the object while settling (inlier fraction {est.inlier_fraction:.2f}): "
             "check the initial pose (--init-pose) and the model"
@@ -433,11 +457,9 @@ def _settle(tracker: Any, pump: _CameraPump, cfg: RealLoopConfig, clock: Callabl
     return est
 
 
-def _watchdog_reason(cmd: Any, lost: bool, stale_after_s: float) -> str:
+def _watchdog_reason(cmd: Any, stale_after_s: float) -> str:
     if cmd.state == "rejected" and not cmd.watchdog:
         return f"pose jump: {cmd.reason}"
-    if lost:
-        return f"no fresh pose for {stale_after_s} s: the tracker reports the object lost"
     return f"no fresh pose for {stale_after_s} s"
 
 
@@ -522,12 +544,16 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
     T_c_o (N, 4, 4))``, to score the tracker (``gt_track_pos_rms_mm``, ``gt_track_rot_rms_deg``; None
     without)."""
     n = len(r.t_s)
-    gt_pos = gt_rot = None
+    gt_pos = gt_rot = loss = None
     if gt is not None and n:
         from evservo.sim.record import gt_at
 
-        k_pos, k_rot = pose_errors(r.T_c_o_est, gt_at(gt[0], gt[1], r.est_t_us))
+        T_gt = gt_at(gt[0], gt[1], r.est_t_us)
+        k_pos, k_rot = pose_errors(r.T_c_o_est, T_gt)
         gt_pos, gt_rot = rms(k_pos) * 1e3, float(np.rad2deg(rms(k_rot)))
+        # Whether the object could be seen is not known here: every cycle counts as seen.
+        wrong = wrong_pose(k_pos, k_rot, T_gt[:, 2, 3])
+        loss = loss_metrics(r.t_s, r.lost, wrong, np.ones(n, bool), started_lost=r.config.search)
     s_pos, s_rot = pose_errors(r.T_c_o_est, np.broadcast_to(r.T_c_o_des, (n, 4, 4)))
     cam_rot = rotation_from_first_rad(r.T_w_c)
     d_cam = r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3] if n else np.zeros((0, 3))
@@ -545,6 +571,10 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
         "servo_pos_max_mm": float(np.max(s_pos) * 1e3) if n else float("nan"),
         "gt_track_pos_rms_mm": gt_pos,
         "gt_track_rot_rms_deg": gt_rot,
+        "loss": loss,
+        "lost_fraction": float(np.mean(r.lost)) if n else 0.0,
+        # Each cycle holds until the next one (missed cycles included).
+        "holding_s": float(np.sum(np.diff(r.t_s, append=r.t_s[-1:])[r.holding])) if n else 0.0,
         "camera_rot_mean_deg": float(np.rad2deg(np.mean(cam_rot))) if n else float("nan"),
         "camera_travel_max_m": float(np.max(np.linalg.norm(d_cam, axis=1))) if n else 0.0,
         "tracker_rate_hz": n_steps / r.tracker_s,

@@ -199,9 +199,10 @@ class Tracker:
         """Synchronous: ingest the batch, run one cycle (1 LM + N search, or N+1 steps), return the estimate."""
         return self._core.update(as_event_cd(events))
 
-    def ingest(self, events: np.ndarray) -> None:
-        """Synchronous: ingest a batch without solving."""
-        self._core.ingest(as_event_cd(events))
+    def ingest(self, events: np.ndarray, thin: bool = False) -> None:
+        """Synchronous: ingest a batch without solving; with ``thin``, keep the uniform fraction that
+        :meth:`push` would keep under overload (``ingest_core_share`` / ``max_ingest_rate``)."""
+        self._core.ingest(as_event_cd(events), thin=thin)
 
     def step(self, n: int = 1) -> Estimate:
         """Synchronous: run ``n`` single updates (one LM or one search step each) on the current events."""
@@ -263,6 +264,17 @@ class Tracker:
         fraction of each batch is kept, so the pose stays fresh; ``stats()`` counts events offered,
         ingested and dropped. Raises ``ValueError`` for a bad batch (nothing of it is ingested)."""
         self._core.push(as_event_cd(events))
+
+    def replay(self, path: str | os.PathLike, batch_us: int = 1000, speed: float | None = 1.0) -> _evcore.Replay:
+        """Push a Prophesee RAW file into the running tracker from a Rust thread: decoded, cut into
+        time slices of ``batch_us`` (µs; the slices of ``evservo.io.open_events``, with times that
+        step back clamped to the newest one) and ingested as ``push`` does, without the GIL or any
+        Python per batch. ``speed`` 1.0 replays in real time, 2.0 twice as fast, None as fast as
+        ingest takes it. Returns a :class:`~evservo._evcore.Replay`: ``wait(timeout)`` (raises the
+        replay's error: ``DecodeError`` for a corrupt file; Ctrl-C stops it), ``stop()``,
+        ``running``, ``stats()``; a ``with`` block stops it on exit. Raises ``FileNotFoundError``,
+        ``DecodeError`` for an unreadable header, ``RuntimeError`` unless the tracker is running."""
+        return _evcore.replay_into(self._core, os.fspath(path), batch_us, speed)
 
     def latest(self) -> Estimate:
         """The newest estimate, without any lock (safe from any thread, also during start/stop)."""

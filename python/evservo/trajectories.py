@@ -14,6 +14,10 @@ Kinds (peak speed along x ``speed_mps``, peak angular rate ``rot_rate_dps``):
 - ``stop-go``: moves along x for the first half, then stands still (where activity-based
   representations fade and SCARF does not).
 - ``reversal``: along x at constant speed, turning back abruptly at ±amplitude (a triangle wave).
+- ``leave-return``: leaves the view and comes back elsewhere (issue 12): after 0.2 s a dash of
+  :data:`LEAVE_M` along x at peak speed ``speed_mps``, faster than a camera can follow, then 0.4 s out
+  there, then back at half that speed to another place (``-0.2·LEAVE_M`` along x, 0.05 m along
+  z) turned by 25° about z, and rest.
 - a CSV path with header ``t_s,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad`` (displacement, rotation vector),
   interpolated linearly (rotation by slerp) and held constant beyond its ends.
 """
@@ -29,7 +33,11 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from evservo.inputs import require_regular_file
 
-KINDS = ("trans", "trans-rot", "circle", "figure8", "stop-go", "reversal")
+KINDS = ("trans", "trans-rot", "circle", "figure8", "stop-go", "reversal", "leave-return")
+#: Kinds whose object leaves a following camera's view (the episode then scores loss and re-lock).
+LEAVING_KINDS = ("leave-return",)
+#: How far ``leave-return`` dashes (m): beyond the view's half-width at 0.6 m (0.33 m on the IMX636).
+LEAVE_M = 0.5
 CSV_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad")
 
 Trajectory = Callable[[np.ndarray], np.ndarray]
@@ -73,6 +81,8 @@ def make_trajectory(
             # arcsin∘sin is a triangle wave of slope ±1: constant speed, reversing at ±A.
             x = (2 * A / np.pi) * np.arcsin(np.sin(0.5 * np.pi * w * t))
             trans = np.stack([x, zeros, zeros], axis=1)
+        elif kind == "leave-return":
+            return _leave_return(t, max(speed_mps, 1e-3))
         else:  # stop-go: constant speed for the first period's quarter, then rest
             t_stop = 0.5 * A / max(speed_mps, 1e-9)
             x = speed_mps * np.minimum(t, t_stop)
@@ -87,6 +97,25 @@ def make_trajectory(
         return _compose(trans, rot)
 
     return traj
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _leave_return(t: np.ndarray, speed_mps: float) -> np.ndarray:
+    """The ``leave-return`` kind (module docstring); a smoothstep over a distance d and time T peaks at
+    1.5·d/T."""
+    t_out = 1.5 * LEAVE_M / speed_mps
+    t_back0 = 0.2 + t_out + 0.4
+    back = np.array([-0.2 * LEAVE_M, 0.0, 0.05])
+    t_back = 1.5 * float(np.linalg.norm(back - [LEAVE_M, 0, 0])) / (speed_mps / 2)
+    s_out = _smoothstep((t - 0.2) / t_out)[:, None]
+    s_back = _smoothstep((t - t_back0) / t_back)[:, None]
+    trans = (1 - s_back) * s_out * np.array([LEAVE_M, 0.0, 0.0]) + s_back * back
+    rot = s_back * np.array([0.0, 0.0, np.deg2rad(25.0)])
+    return _compose(trans, rot)
 
 
 def load_csv_trajectory(path: str | Path) -> Trajectory:

@@ -1,5 +1,6 @@
 //! EVT 3.0 / EVT 2.0 decode throughput on the real recordings, in events per second.
-//! The files are read once; each iteration decodes their in-memory data into a reused batch.
+//! The files are read once; each iteration decodes their in-memory data into a reused vector of
+//! records (the `EventCD` layout the readers hand to Python).
 //! Samples come from `EVSERVO_SAMPLES` (default: ../shared/event-samples next to the workspace).
 //!
 //! Time is this thread's CPU time (Linux `/proc/thread-self/schedstat`) when available, so the
@@ -7,7 +8,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use evcore::io::{Decoder, RawHeader};
-use evcore::EventBatch;
+use evcore::EventCd;
 use std::hint::black_box;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -59,7 +60,7 @@ fn decode(c: &mut Criterion) {
             Decoder::for_sensor(header.format, header.width, header.height)
                 .expect("sample geometry")
         };
-        let mut out = EventBatch::default();
+        let mut out: Vec<EventCd> = Vec::new();
         fresh().decode(data, &mut out).expect("sample decodes");
         group.throughput(Throughput::Elements(out.len() as u64));
         group.bench_function(label, |b| {

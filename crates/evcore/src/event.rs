@@ -136,35 +136,22 @@ impl EventRecords for EventBatch {
 
 /// Where decoded events go: columns ([`EventBatch`]) or records (`Vec<EventCd>`).
 pub trait EventSink {
-    /// Append events `range` of `batch`.
-    fn extend_from_batch(&mut self, batch: &EventBatch, range: std::ops::Range<usize>);
+    /// Append `events`.
+    fn extend_from_records(&mut self, events: &[EventCd]);
 }
 
 impl EventSink for EventBatch {
-    fn extend_from_batch(&mut self, b: &EventBatch, r: std::ops::Range<usize>) {
-        self.x.extend_from_slice(&b.x[r.clone()]);
-        self.y.extend_from_slice(&b.y[r.clone()]);
-        self.p.extend_from_slice(&b.p[r.clone()]);
-        self.t_us.extend_from_slice(&b.t_us[r]);
+    fn extend_from_records(&mut self, events: &[EventCd]) {
+        self.x.extend(events.iter().map(|e| e.x));
+        self.y.extend(events.iter().map(|e| e.y));
+        self.p.extend(events.iter().map(|e| e.p));
+        self.t_us.extend(events.iter().map(|e| e.t));
     }
 }
 
 impl EventSink for Vec<EventCd> {
-    fn extend_from_batch(&mut self, b: &EventBatch, r: std::ops::Range<usize>) {
-        let (x, y, p, t) = (
-            &b.x[r.clone()],
-            &b.y[r.clone()],
-            &b.p[r.clone()],
-            &b.t_us[r],
-        );
-        self.reserve(x.len());
-        self.extend(
-            x.iter()
-                .zip(y)
-                .zip(p)
-                .zip(t)
-                .map(|(((&x, &y), &p), &t)| EventCd::new(x, y, p, t)),
-        );
+    fn extend_from_records(&mut self, events: &[EventCd]) {
+        self.extend_from_slice(events);
     }
 }
 
@@ -294,9 +281,9 @@ impl EventBatch {
 
     /// The events as records, in order.
     pub fn to_records(&self) -> Vec<EventCd> {
-        let mut out = Vec::new();
-        out.extend_from_batch(self, 0..self.len());
-        out
+        (0..self.len())
+            .map(|i| EventCd::new(self.x[i], self.y[i], self.p[i], self.t_us[i]))
+            .collect()
     }
 }
 

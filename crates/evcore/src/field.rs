@@ -162,6 +162,50 @@ impl FieldLevel {
         ]
     }
 
+    /// Adds the 13 samples of a search star (see [`crate::solve::cost::CostMap::add_star`]) to
+    /// `sums`. When every sample's cell lies inside the roi (the common case), the samples skip the
+    /// per-sample cell tests and run as fixed-length array passes (coordinates, one test for all,
+    /// indices and weights, then taps and blends) that the compiler turns into vector code around
+    /// the 52 scalar loads; otherwise each sample takes [`Self::sample`]. Both give the same values.
+    #[inline]
+    pub fn add_star(&self, u: f32, v: f32, du: &[f32; 6], dv: &[f32; 6], sums: &mut [f32; 13]) {
+        // Lane 0 is the centre, lanes 2k+1 / 2k+2 the ± pair of axis k; lanes 13..16 repeat the
+        // centre. Coordinates are formed exactly as `sample` forms them, so the values agree.
+        let (x0, y0) = (self.roi.x0 as f32, self.roi.y0 as f32);
+        let mut xs = [u - x0; 16];
+        let mut ys = [v - y0; 16];
+        for k in 0..6 {
+            xs[2 * k + 1] = (u + du[k]) - x0;
+            ys[2 * k + 1] = (v + dv[k]) - y0;
+            xs[2 * k + 2] = (u - du[k]) - x0;
+            ys[2 * k + 2] = (v - dv[k]) - y0;
+        }
+        let (w, h) = (self.roi.width as f32 - 1.0, self.roi.height as f32 - 1.0);
+        // NaN fails every comparison and takes the general path.
+        let inside = xs.iter().zip(&ys).fold(true, |ok, (&x, &y)| {
+            ok & (x >= 0.0) & (y >= 0.0) & (x < w) & (y < h)
+        });
+        if !inside {
+            sums[0] += self.sample(u, v);
+            for k in 0..6 {
+                sums[2 * k + 1] += self.sample(u + du[k], v + dv[k]);
+                sums[2 * k + 2] += self.sample(u - du[k], v - dv[k]);
+            }
+            return;
+        }
+        let stride = self.roi.width as usize;
+        // Non-negative inside the roi, so truncation is the floor.
+        let idx: [usize; 16] = std::array::from_fn(|i| ys[i] as usize * stride + xs[i] as usize);
+        let ax: [f32; 16] = std::array::from_fn(|i| xs[i] - (xs[i] as usize) as f32);
+        let ay: [f32; 16] = std::array::from_fn(|i| ys[i] - (ys[i] as usize) as f32);
+        let val = &self.value;
+        for i in 0..13 {
+            // Inside, every tap lies in the roi: idx + stride + 1 < value.len().
+            let t = &val[idx[i]..idx[i] + stride + 2];
+            sums[i] += bilinear(t[0], t[1], t[stride], t[stride + 1], ax[i], ay[i]);
+        }
+    }
+
     /// Locates the bilinear cell of (u, v): fully inside (fast path), straddling the roi border,
     /// or out of reach of every pixel.
     #[inline]
@@ -715,6 +759,51 @@ mod tests {
             levels,
         })
         .unwrap()
+    }
+
+    /// The star fast path must return the general path's values bit for bit, inside the roi, across
+    /// its border (where the general path takes over) and off it.
+    #[test]
+    fn search_star_matches_single_samples_everywhere() {
+        let (w, h) = (61usize, 47usize);
+        let mut rng = crate::rng::Rng::new(4);
+        let mask: Vec<u8> = (0..w * h).map(|_| u8::from(rng.below(9) == 0)).collect();
+        let roi = Roi {
+            x0: 17,
+            y0: 5,
+            width: w as u32,
+            height: h as u32,
+        };
+        let mut f = field(10.0, 1);
+        f.build(&mask, roi, 1).unwrap();
+        let lvl = f.level(0);
+        let (mut inside, mut border) = (0, 0);
+        for i in 0..4000 {
+            let u = 17.0 - 4.0 + (w as f32 + 8.0) * rng.below(1 << 20) as f32 / (1 << 20) as f32;
+            let v = 5.0 - 4.0 + (h as f32 + 8.0) * rng.below(1 << 20) as f32 / (1 << 20) as f32;
+            let s = 0.3 + (i % 7) as f32 * 0.4;
+            let du: [f32; 6] = std::array::from_fn(|k| s * (k as f32 - 2.5) / 2.5);
+            let dv: [f32; 6] = std::array::from_fn(|k| s * (1.5 - k as f32) / 2.5);
+            let mut fast = [0.0f32; 13];
+            lvl.add_star(u, v, &du, &dv, &mut fast);
+            let mut slow = [lvl.sample(u, v); 13];
+            for k in 0..6 {
+                slow[2 * k + 1] = lvl.sample(u + du[k], v + dv[k]);
+                slow[2 * k + 2] = lvl.sample(u - du[k], v - dv[k]);
+            }
+            assert_eq!(fast, slow, "star at ({u}, {v}) step {s}");
+            let x = u - 17.0;
+            if x > s + 0.5
+                && x < w as f32 - s - 2.0
+                && v - 5.0 > s + 0.5
+                && v - 5.0 < h as f32 - s - 2.0
+            {
+                inside += 1;
+            } else {
+                border += 1;
+            }
+        }
+        assert!(inside > 2000 && border > 500, "{inside} {border}");
     }
 
     #[test]

@@ -17,6 +17,7 @@ pub mod io;
 pub mod mesh;
 pub mod pointset;
 pub mod render;
+pub mod replay;
 pub mod rng;
 pub mod se3;
 pub mod sim;

@@ -60,6 +60,24 @@ fn vec3(p: &[f32; 3]) -> Vector3<f64> {
 }
 
 impl Mesh {
+    /// A sphere holding every vertex: (centre in the object frame, radius), both metres: the
+    /// sphere around the vertices' bounding box (one pass, cheap enough to take per frame).
+    pub fn bounding_sphere(&self) -> (Vector3<f64>, f64) {
+        let (mut lo, mut hi) = (self.vertices[0], self.vertices[0]);
+        for v in &self.vertices {
+            for k in 0..3 {
+                lo[k] = lo[k].min(v[k]);
+                hi[k] = hi[k].max(v[k]);
+            }
+        }
+        let (lo, hi) = (vec3(&lo), vec3(&hi));
+        // Grown by a relative 1e-6 so that f32 vertices on the box corners stay inside.
+        (
+            0.5 * (lo + hi),
+            0.5 * (hi - lo).norm() * (1.0 + 1e-6) + 1e-9,
+        )
+    }
+
     /// Validates everything the renderer relies on, so that rendering never has to check again:
     /// at least one vertex and face, finite coordinates, indices in range, per-vertex arrays as
     /// long as `vertices`, albedos finite and non-negative, and a total area above 1e-10 m².

@@ -159,6 +159,25 @@ fn clip_near(tri: [ClipVertex; 3], out: &mut [ClipVertex; 4]) -> usize {
     n
 }
 
+/// Whether a sphere (centre in the camera frame, radius, metres) cannot reach pixels
+/// `[x_lo, x_hi] × [y_lo, y_hi]` of pinhole `cam` (inclusive pixel bounds): it lies wholly behind
+/// the near plane, or wholly beyond one side plane of the region's viewing frustum, grown by one
+/// pixel so that rounding cannot cull a triangle [`setup`] would keep. Near-clipped points stay
+/// inside the sphere (they lie on its triangles), so a culled mesh would yield no triangle.
+pub fn sphere_misses(cam: &Camera, centre: &Vector3<f64>, radius: f64, bounds: [f64; 4]) -> bool {
+    if centre.z + radius < NEAR_PLANE_M {
+        return true;
+    }
+    let [x_lo, x_hi, y_lo, y_hi] = bounds;
+    // A point p in front of the camera projects left of u₀ iff fx·x + (cx − u₀)·z < 0: the
+    // half-space below a plane through the optical centre with normal (fx, 0, cx − u₀).
+    let beyond = |n: Vector3<f64>| n.dot(centre) + radius * n.norm() < 0.0;
+    beyond(Vector3::new(cam.fx, 0.0, cam.cx - (x_lo - 1.0)))
+        || beyond(Vector3::new(-cam.fx, 0.0, (x_hi + 1.0) - cam.cx))
+        || beyond(Vector3::new(0.0, cam.fy, cam.cy - (y_lo - 1.0)))
+        || beyond(Vector3::new(0.0, -cam.fy, (y_hi + 1.0) - cam.cy))
+}
+
 /// Edge-function setup of a projected triangle; `None` when it has no area on screen or misses
 /// the region `[rx0, rx1] × [ry0, ry1]` (inclusive pixel bounds).
 fn setup(
@@ -337,8 +356,19 @@ impl Renderer {
             i64::from(roi.y0 + roi.height) - 1,
         ];
         self.tris.clear();
+        let region = bounds.map(|b| b as f64);
         for (mesh_id, &(mesh, t_c_o)) in scene.iter().enumerate() {
             let mesh_id = mesh_id as u32;
+            // Meshes out of view (e.g. most links of the camera's own arm) cost nothing.
+            let (centre, radius) = mesh.bounding_sphere();
+            if sphere_misses(
+                camera,
+                &(t_c_o * Point3::from(centre)).coords,
+                radius,
+                region,
+            ) {
+                continue;
+            }
             self.verts_c.clear();
             self.verts_c
                 .par_extend(mesh.vertices.par_iter().with_min_len(1024).map(|v| {
@@ -395,6 +425,29 @@ impl Renderer {
         roi: Roi,
         opts: &RenderOptions,
     ) -> Result<&Rendered> {
+        self.draw_prepared_rows(scene, camera, roi, None, opts)
+    }
+
+    /// [`Self::draw_prepared`] restricted to a column range per row: `rows[k]` is the inclusive
+    /// pixel range [x_lo, x_hi] drawn in row `roi.y0 + k` (empty when x_lo > x_hi). Only depth
+    /// and intensity inside the ranges are written: the rest of `roi`, and `normal_c`, hold
+    /// whatever they held (the rendered camera reads no more). Drawn pixels equal those of a
+    /// whole-region draw up to the rounding of 1/z stepped from a different first column.
+    pub fn draw_prepared_rows(
+        &mut self,
+        scene: &[(&Mesh, &Pose)],
+        camera: &Camera,
+        roi: Roi,
+        rows: Option<&[(i64, i64)]>,
+        opts: &RenderOptions,
+    ) -> Result<&Rendered> {
+        ensure(rows.is_none_or(|r| r.len() == roi.height as usize), || {
+            format!(
+                "{} column ranges for the {} rows of {roi:?}",
+                rows.map_or(0, <[_]>::len),
+                roi.height
+            )
+        })?;
         let Some((region, n_meshes)) = self.prepared else {
             return Err(crate::Error::InvalidArgument(
                 "draw_prepared before prepare_scene".into(),
@@ -422,6 +475,22 @@ impl Renderer {
 
         let (w, h) = (roi.width as usize, roi.height as usize);
         let n_bands = h.div_ceil(BAND_ROWS);
+        // Each band's columns: the union of its rows' ranges (the whole region without `rows`).
+        let band_cols: Vec<(i64, i64)> = (0..n_bands)
+            .map(|b| match rows {
+                None => (bounds[0], bounds[1]),
+                Some(r) => r[b * BAND_ROWS..((b + 1) * BAND_ROWS).min(h)].iter().fold(
+                    (i64::MAX, i64::MIN),
+                    |(lo, hi), &(a, z)| {
+                        if a > z {
+                            (lo, hi)
+                        } else {
+                            (lo.min(a), hi.max(z))
+                        }
+                    },
+                ),
+            })
+            .collect();
         self.bins.resize_with(n_bands, Vec::new);
         self.bins.iter_mut().for_each(Vec::clear);
         for (id, t) in self.tris.iter().enumerate() {
@@ -431,8 +500,13 @@ impl Renderer {
             }
             let first = (y_lo - bounds[2]) as usize / BAND_ROWS;
             let last = (y_hi - bounds[2]) as usize / BAND_ROWS;
-            for bin in &mut self.bins[first..=last] {
-                bin.push(id as u32);
+            for (bin, &(lo, hi)) in self.bins[first..=last]
+                .iter_mut()
+                .zip(&band_cols[first..=last])
+            {
+                if t.x_hi >= lo && t.x_lo <= hi {
+                    bin.push(id as u32);
+                }
             }
         }
 
@@ -442,7 +516,7 @@ impl Renderer {
         self.out.intensity.resize(n, 0.0);
         self.out.normal_c.resize(n, [0.0; 3]);
         let band_len = BAND_ROWS * w;
-        let (tris, bins) = (&self.tris, &self.bins);
+        let (tris, bins, rows_cols) = (&self.tris, &self.bins, rows);
         let Rendered {
             depth_m,
             intensity,
@@ -466,6 +540,7 @@ impl Renderer {
                     y0: y_first,
                     width: w,
                     rows,
+                    cols: rows_cols.map(|r| &r[band * BAND_ROWS..band * BAND_ROWS + rows]),
                 };
                 rasterize_band(tris, &bins[band], &band_bounds, depth, ids);
                 shade_band(
@@ -484,12 +559,14 @@ impl Renderer {
     }
 }
 
-/// Image position of one band: its first pixel (x0, y0), width and number of rows.
-struct Band {
+/// Image position of one band: its first pixel (x0, y0), width and number of rows, and the
+/// inclusive column range drawn in each of its rows (all of them when `None`).
+struct Band<'a> {
     x0: i64,
     y0: i64,
     width: usize,
     rows: usize,
+    cols: Option<&'a [(i64, i64)]>,
 }
 
 /// Visibility pass: `inv_z` holds 1/z (0 = nothing yet), `ids` the winning triangle.
@@ -505,6 +582,13 @@ fn rasterize_band(tris: &[Tri], bin: &[u32], band: &Band, inv_z: &mut [f32], ids
             // Clipping to the band's columns here equals clipping the box at setup: the bounds
             // are integers, so they commute with the span's rounding.
             let (xs, xe) = (xs.max(band.x0), xe.min(band.x0 + band.width as i64 - 1));
+            let (xs, xe) = match band.cols {
+                Some(c) => {
+                    let (lo, hi) = c[(y - band.y0) as usize];
+                    (xs.max(lo), xe.min(hi))
+                }
+                None => (xs, xe),
+            };
             if xs > xe {
                 continue;
             }
@@ -543,19 +627,33 @@ fn shade_band(
     let w = band.width;
     for r in 0..band.rows {
         let y = (band.y0 + r as i64) as f64;
-        let mut c = 0;
+        // With column ranges only they are shaded, and normals are left alone.
+        let (mut c, w) = match band.cols {
+            Some(cols) => {
+                let (lo, hi) = cols[r];
+                let (lo, hi) = (lo.max(band.x0), hi.min(band.x0 + w as i64 - 1));
+                if lo > hi {
+                    continue;
+                }
+                ((lo - band.x0) as usize, (hi - band.x0) as usize + 1)
+            }
+            None => (0, w),
+        };
         while c < w {
-            let row = r * w;
+            let row = r * band.width;
             let id = ids[row + c];
             let end = ids[row + c..row + w]
                 .iter()
                 .position(|&k| k != id)
                 .map_or(w, |n| c + n);
             let run = row + c..row + end;
+            let normals = band.cols.is_none().then_some(&mut *normals);
             if id == NO_TRIANGLE {
                 depth[run.clone()].fill(f32::INFINITY);
                 intensity[run.clone()].fill(opts.background);
-                normals[run].fill([0.0; 3]);
+                if let Some(n) = normals {
+                    n[run].fill([0.0; 3]);
+                }
             } else {
                 let t = &tris[id as usize];
                 let x0 = (band.x0 + c as i64) as f64;
@@ -570,7 +668,9 @@ fn shade_band(
                         shade_run(cam, opts, t, x0, y, out, |uv| texture.sample(uv[0], uv[1]))
                     }
                 }
-                normals[run].fill(t.normal_c);
+                if let Some(n) = normals {
+                    n[run].fill(t.normal_c);
+                }
             }
             c = end;
         }
@@ -898,6 +998,69 @@ mod tests {
         let behind = Isometry3::translation(0.0, 0.0, -3.0);
         let r = render(&mesh, &cam, &behind, None, &RenderOptions::default()).unwrap();
         assert!(r.depth_m.iter().all(|d| d.is_infinite()));
+    }
+
+    #[test]
+    fn culled_meshes_would_draw_nothing() {
+        // A cube swept out of view across each side of the image and of a region, and through
+        // the camera plane: wherever the sphere test culls it, a render without the test (the
+        // mesh's triangles set up one by one) covers no pixel; and far enough out it culls.
+        let cam = cam();
+        let mesh = cube(0.2, Shading::Constant(0.5));
+        let (centre, radius) = mesh.bounding_sphere();
+        assert!(mesh.vertices.iter().all(|v| (Vector3::new(
+            f64::from(v[0]),
+            f64::from(v[1]),
+            f64::from(v[2])
+        ) - centre)
+            .norm()
+            <= radius));
+        let regions = [[0.0, 319.0, 0.0, 239.0], [100.0, 179.0, 60.0, 139.0]];
+        let mut culled = 0;
+        for bounds in regions {
+            for k in -40..=40 {
+                let s = f64::from(k) * 0.05;
+                for t in [
+                    Isometry3::translation(s, 0.0, 1.0),
+                    Isometry3::translation(0.0, s, 1.0),
+                    Isometry3::translation(0.3 * s, 0.2, 0.4 * s),
+                ] {
+                    let t = t * Isometry3::rotation(Vector3::new(0.3, 0.2 * s, 0.1));
+                    let c = (t * Point3::from(centre)).coords;
+                    if !sphere_misses(&cam, &c, radius, bounds) {
+                        continue;
+                    }
+                    culled += 1;
+                    let roi = Roi {
+                        x0: bounds[0] as u32,
+                        y0: bounds[2] as u32,
+                        width: (bounds[1] - bounds[0]) as u32 + 1,
+                        height: (bounds[3] - bounds[2]) as u32 + 1,
+                    };
+                    let ib = bounds.map(|b| b as i64);
+                    for f in &mesh.faces {
+                        let v = f.map(|k| {
+                            let p = mesh.vertices[k as usize];
+                            let q = Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                            ClipVertex {
+                                p: (t * q).coords,
+                                attr: [0.0; 2],
+                            }
+                        });
+                        let mut out = [v[0]; 4];
+                        let n = clip_near(v, &mut out);
+                        for i in 1..n.saturating_sub(1) {
+                            let tri = [out[0], out[i], out[i + 1]];
+                            assert!(
+                                setup(&cam, tri, [0.0; 3], 0, ib).is_none(),
+                                "{t:?} culled in {roi:?} but a triangle reaches it"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        assert!(culled > 100, "{culled} poses culled");
     }
 
     #[test]

@@ -202,6 +202,34 @@ const UNCONFIRMED_US: i64 = 100_000;
 /// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
 const MIN_VISIBLE_POINTS: usize = 6;
 
+/// Below this share of S* in view, or with S* reaching within `BORDER_CUT_PX` of the image border
+/// (an object cut by the border from the start has only its visible part in S*), LM registers at
+/// full resolution only. The coarse levels' wide basins are safe while the whole outline holds
+/// them in place; with part of it out of view they slide towards edges the missing part would
+/// have ruled out (issue 13, objects suite: can at 0.6 m partly out of view, 233 mm / 22° with
+/// three levels, about 1 mm / 0.5° with one).
+const FULL_VIEW_FRACTION: f32 = 0.99;
+const BORDER_CUT_PX: f32 = 3.0 * VIEW_MARGIN_PX as f32;
+
+/// True when one of `points` projects (at `pose`, pinhole `pin`) within `BORDER_CUT_PX` of the
+/// border of a `width` × `height` image.
+fn reaches_border(
+    pin: &Pinhole,
+    pose: &Rigid32,
+    points: &[[f32; 3]],
+    width: u32,
+    height: u32,
+) -> bool {
+    let (hi_u, hi_v) = (
+        width as f32 - 1.0 - BORDER_CUT_PX,
+        height as f32 - 1.0 - BORDER_CUT_PX,
+    );
+    points.iter().any(|&x| {
+        pin.project(pose.apply(x))
+            .is_some_and(|(u, v)| u < BORDER_CUT_PX || v < BORDER_CUT_PX || u > hi_u || v > hi_v)
+    })
+}
+
 /// `new` with its rotation relative to `prior` about each of `axes` (object frame, each a unit
 /// axis and a point on it) removed; the points on the axis stay where `new` put them.
 fn hold_axes(prior: &Pose, new: Pose, axes: &[(Vector3<f64>, Vector3<f64>)]) -> Pose {
@@ -739,7 +767,15 @@ impl Solver {
             self.lose(t_us, n_events, visible_fraction);
             return self.last;
         }
-        let n_levels = if kind == StepKind::Lm {
+        let whole = visible_fraction >= FULL_VIEW_FRACTION
+            && !reaches_border(
+                &self.pins[0],
+                &Rigid32::from_pose(&pose),
+                &visible,
+                self.rect.width,
+                self.rect.height,
+            );
+        let n_levels = if kind == StepKind::Lm && whole {
             self.config.field.levels
         } else {
             1
@@ -1149,6 +1185,12 @@ impl TrackerCore {
     /// batch leaves the tracker unchanged.
     pub fn ingest<E: EventRecords + ?Sized>(&mut self, events: &E) -> Result<()> {
         self.ingest.push(events, false)
+    }
+
+    /// As [`Self::ingest`], but thinned under overload exactly as [`ThreadedTracker::push`] does
+    /// (for a simulated producer that must behave like the threaded tracker's).
+    pub fn ingest_thinned<E: EventRecords + ?Sized>(&mut self, events: &E) -> Result<()> {
+        self.ingest.push(events, true)
     }
 
     /// Forget every event and the time line; the pose stays. After this, time may start anew

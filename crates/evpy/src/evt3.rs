@@ -34,8 +34,8 @@ impl PyEvt3Decoder {
         let dec = &mut self.inner;
         let batch = py
             .detach(|| {
-                let mut out = EventBatch::default();
-                dec.decode(data, &mut out).map(|()| out.to_records())
+                let mut out = Vec::new();
+                dec.decode(data, &mut out).map(|()| out)
             })
             .map_err(to_py)?;
         Ok(to_array(py, batch))

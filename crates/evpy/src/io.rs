@@ -78,12 +78,7 @@ impl PyRawReader {
     /// Every remaining event as one EVENT_CD array (empty at the end of the file).
     fn read_all<'py>(&mut self, py: Python<'py>) -> PyResult<Events<'py>> {
         let reader = &mut self.inner;
-        let out = py
-            .detach(|| {
-                let mut out = Vec::new();
-                reader.read_all(&mut out).map(|_| out)
-            })
-            .map_err(to_py)?;
+        let out = py.detach(|| reader.read_rest()).map_err(to_py)?;
         Ok(to_array(py, out))
     }
 

@@ -11,6 +11,7 @@ mod field;
 mod io;
 mod model;
 mod pose;
+mod replay;
 mod sim;
 mod simcam;
 mod tracker;
@@ -28,5 +29,6 @@ fn _evcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     model::register(m)?;
     io::register(m)?;
     evt3::register(m)?;
+    replay::register(m)?;
     Ok(())
 }

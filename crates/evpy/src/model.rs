@@ -229,9 +229,11 @@ type PointsAndKinds<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u8>>)
 
 /// The model point set S* from one render at `T_c_o` (4×4, object in camera). Returns
 /// (points (K, 3) float64 metres in the object frame, kinds (K,) uint8: 0 silhouette, 1 crease,
-/// 2 texture). Raises ValueError if the object is out of view or shows fewer than 20 edge pixels.
+/// 2 texture). `balance`: share of the points chosen for the pose constraints they add rather
+/// than spread evenly. Raises ValueError if the object is out of view or shows fewer than 20 edge
+/// pixels.
 #[pyfunction]
-#[pyo3(signature = (mesh, camera, T_c_o, max_points=1000, seed=0, depth_jump_m=0.01, crease_deg=30.0, texture_grad=0.08))]
+#[pyo3(signature = (mesh, camera, T_c_o, max_points=1000, seed=0, depth_jump_m=0.01, crease_deg=30.0, texture_grad=0.08, balance=0.0))]
 #[allow(non_snake_case, clippy::too_many_arguments)]
 fn extract_point_set<'py>(
     py: Python<'py>,
@@ -243,6 +245,7 @@ fn extract_point_set<'py>(
     depth_jump_m: f32,
     crease_deg: f32,
     texture_grad: f32,
+    balance: f32,
 ) -> PyResult<PointsAndKinds<'py>> {
     let pose = pose_arg(&T_c_o)?;
     let params = PointSetParams {
@@ -250,6 +253,7 @@ fn extract_point_set<'py>(
         depth_jump_m,
         crease_deg,
         texture_grad,
+        balance,
         seed,
     };
     let (m, cam) = (mesh.inner.clone(), camera.inner);

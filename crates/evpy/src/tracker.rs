@@ -117,7 +117,7 @@ fn matrix_to_py<'py>(py: Python<'py>, m: &[[f64; 4]; 4]) -> Bound<'py, PyArray2<
 /// A field image and the (x0, y0) of its region in the rectified image.
 type FieldWithOrigin<'py> = (Bound<'py, PyArray2<f32>>, (u32, u32));
 
-enum State {
+pub(crate) enum State {
     Sync(Box<TrackerCore>),
     Threaded(Box<ThreadedTracker>),
     /// Only inside `start`/`stop`, under the lock, while the core moves; never seen by a caller.
@@ -133,7 +133,8 @@ enum State {
 #[pyclass(name = "Tracker", module = "evservo._evcore", frozen)]
 pub struct PyTracker {
     output: Arc<TrackerOutput>,
-    state: Mutex<State>,
+    /// Shared with a running file replay (`replay::replay_into`), which pushes through it.
+    pub(crate) state: Arc<Mutex<State>>,
 }
 
 #[pymethods]
@@ -257,7 +258,7 @@ impl PyTracker {
             .map_err(to_py)?;
         Ok(Self {
             output: core.output(),
-            state: Mutex::new(State::Sync(Box::new(core))),
+            state: Arc::new(Mutex::new(State::Sync(Box::new(core)))),
         })
     }
 
@@ -271,10 +272,19 @@ impl PyTracker {
         })
     }
 
-    /// Ingest one EVENT_CD batch (every event) without stepping.
-    fn ingest(&self, py: Python<'_>, events: EventArray<'_>) -> PyResult<()> {
+    /// Ingest one EVENT_CD batch without stepping: every event, or with `thin` the fraction the
+    /// ingest limit allows under overload, as push() does.
+    #[pyo3(signature = (events, thin=false))]
+    fn ingest(&self, py: Python<'_>, events: EventArray<'_>, thin: bool) -> PyResult<()> {
         let ev = records(&events)?;
-        self.with_core(py, |core| core.ingest(ev))?.map_err(to_py)
+        self.with_core(py, |core| {
+            if thin {
+                core.ingest_thinned(ev)
+            } else {
+                core.ingest(ev)
+            }
+        })?
+        .map_err(to_py)
     }
 
     /// Run `n` single updates (each one LM or one search step) on the current events.

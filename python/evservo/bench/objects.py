@@ -156,16 +156,35 @@ def cases(quick: bool) -> list[Case]:
     return [Case(o, z, c) for o in OBJECTS for z in DISTANCES_M for c in CONDITIONS]
 
 
-def run(out: Path, quick: bool = False, only: tuple[str, ...] = ()) -> list[dict]:
+def rendered(case: Case, camera: _evcore.Camera, cache: Path | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`render_case`, kept in ``cache`` (one ``.npz`` per case) when given, so that tracker
+    changes can be measured on the same recordings without rendering them again."""
+    if cache is None:
+        return render_case(case, camera)
+    path = cache / f"{case.name}-{case.duration_s:g}s-seed{case.seed}.npz"
+    if path.exists():
+        with np.load(path) as z:
+            return z["events"], z["gt_t"], z["gt_T"]
+    events, gt_t, gt_T = render_case(case, camera)
+    cache.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(".partial")
+    with partial.open("wb") as f:  # renamed when complete: a reader never sees half a file
+        np.savez(f, events=events, gt_t=gt_t, gt_T=gt_T)
+    partial.replace(path)
+    return events, gt_t, gt_T
+
+
+def run(out: Path, quick: bool = False, only: tuple[str, ...] = (), cache: Path | None = None) -> list[dict]:
     """Run the suite, write ``out/objects.md`` and ``out/objects.json``; returns the rows.
-    ``only`` restricts it to case names containing any of the given substrings."""
+    ``only`` restricts it to case names containing any of the given substrings; ``cache`` keeps the
+    rendered recordings (see :func:`rendered`)."""
     out.mkdir(parents=True, exist_ok=True)
     camera = _evcore.Camera.imx636()
     rows = []
     for case in cases(quick):
         if only and not any(s in case.name for s in only):
             continue
-        events, gt_t, gt_T = render_case(case, camera)
+        events, gt_t, gt_T = rendered(case, camera, cache)
         for solver in SOLVERS:
             rows.append(track_case(case, camera, events, gt_t, gt_T, solver))
         (out / "objects.json").write_text(json.dumps(rows, indent=1) + "\n")  # partial results survive

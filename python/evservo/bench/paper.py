@@ -120,13 +120,20 @@ def episode_key(cfg: EpisodeConfig) -> str:
     )
 
 
+#: Packages of evservo an episode does not run (the suites' reports and the command line): editing them
+#: leaves the finished episodes reusable.
+NOT_IN_EPISODES = ("bench", "commands")
+
+
 def code_version() -> str:
-    """Content hash of the code an episode runs: evservo's Python sources and its compiled core."""
+    """Content hash of the code an episode runs: evservo's Python sources (but the suites and the
+    commands, :data:`NOT_IN_EPISODES`) and its compiled core."""
     import evservo._evcore as core
 
     pkg = Path(evservo.__file__).parent
+    sources = [p for p in sorted(pkg.rglob("*.py")) if p.relative_to(pkg).parts[0] not in NOT_IN_EPISODES]
     h = hashlib.sha256()
-    for path in [*sorted(pkg.rglob("*.py")), Path(core.__file__)]:
+    for path in [*sources, Path(core.__file__)]:
         h.update(str(path.relative_to(pkg)).encode())
         h.update(path.read_bytes())
     return h.hexdigest()
@@ -136,6 +143,15 @@ def config_hash(cfg: EpisodeConfig, code: str) -> str:
     """Content hash of an episode: its configuration and the code version ``code``."""
     text = json.dumps(asdict(cfg), sort_keys=True, default=str) + code
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def reuse(ep: Path, cfg: EpisodeConfig, code: str) -> dict | None:
+    """The summary of the finished episode in directory ``ep`` if its ``config_hash`` is that of
+    ``cfg`` under code version ``code``, else None (run it)."""
+    stamp = ep / "config_hash"
+    if (ep / "summary.json").exists() and stamp.exists() and stamp.read_text() == config_hash(cfg, code):
+        return _load_summary(ep / "summary.json")
+    return None
 
 
 def _remote_episode(cfg: EpisodeConfig) -> tuple[dict, dict[str, bytes]]:
@@ -167,6 +183,15 @@ def _load_summary(path: Path) -> dict:
         raise ValueError(f"{path}: unreadable episode summary ({e}); delete it to rerun the episode") from None
 
 
+def _priority(rows: list[tuple[str, str, EpisodeConfig]], key: str, cfg: EpisodeConfig) -> tuple:
+    """Run order: our controller's episodes first, and among them the hardest rows (Z = 0.6 m
+    ``trans-rot``, then the translation rows nearest the paper's 0.3 m/s), so that a run cut short has
+    those; a rerun reuses what it finished. Plan order otherwise (the sort is stable)."""
+    first = {"feedforward": 0, "predictor": 1, "sweep": 2}
+    rank = min(first.get(sec, len(first)) for sec, k, _ in rows if k == key)
+    return rank, cfg.trajectory != "trans-rot", cfg.distance_m, abs(cfg.speed_mps - 0.3)
+
+
 def run_all(
     out: Path, quick: bool, jobs: int, events: str = "edges", scheduler: str | None = None
 ) -> tuple[list[tuple[str, str, EpisodeConfig, dict]], int]:
@@ -181,13 +206,13 @@ def run_all(
     summaries: dict[str, dict] = {}
     todo: dict[str, EpisodeConfig] = {}
     for _, key, cfg in rows:
-        ep = out / "episodes" / key
-        stamp = ep / "config_hash"
-        if (ep / "summary.json").exists() and stamp.exists() and stamp.read_text() == config_hash(cfg, code):
-            summaries[key] = _load_summary(ep / "summary.json")
+        done = reuse(out / "episodes" / key, cfg, code)
+        if done is not None:
+            summaries[key] = done
         else:
             todo[key] = cfg
     reused = len(summaries)
+    todo = dict(sorted(todo.items(), key=lambda item: _priority(rows, *item)))
     if scheduler is None and jobs > 1 and todo:
         from evservo.bench.cluster import local_cluster
 
@@ -254,7 +279,7 @@ def report(
              cfg.feedforward)  # fmt: skip
         groups.setdefault(g, []).append({**s, "_key": key})
     lines = [
-        "# evservo paper suite",
+        "# evservo paper suite" + ("" if events == "edges" else " on rendered events"),
         "",
         f"Command: `evservo bench --suite paper{' --quick' if quick else ''}{events_flag} --jobs N --out {out}`; "
         f"evservo {evservo.__version__}, Python {platform.python_version()}, {os.cpu_count()} CPUs, "

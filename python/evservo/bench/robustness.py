@@ -1,95 +1,187 @@
-"""``evservo bench --suite robustness``: does the tracker know when its pose is wrong?
+"""``evservo bench --suite robustness``: does the closed loop know when the pose is wrong (issue 12)?
 
-Runs the scenarios of :mod:`evservo.sim.scenarios` (occlusions, leaving the view, events stopping,
-a wrong model, pure noise, starting without a pose) for each solver and tabulates the detection
-delay, re-lock time, longest confidently-wrong spell and false-loss rate. The per-update confidences
-of the edft+ runs, labelled right or wrong against the truth, give the confidence's ROC: its AUC and,
-at the threshold the tracker uses, the rates at which wrong poses are flagged (TPR) and right ones
-are flagged by mistake (FPR).
+Each scenario is a closed-loop episode (:func:`evservo.sim.episode.run_episode`, our controller, the
+``edges`` event source unless ``events="render"``, the tracker's re-acquisition on) that runs through its losses
+(``end_on_loss=False``) and scores the tracker's ``lost`` flag against the truth
+(:mod:`evservo.runtime.loss`), for each of EDFT⁺, EDOPTS and EDFT:
+
+- ``occlusion-0.5s``, ``occlusion-2s``: the object fully hidden from 0.6 s (no object events, the
+  background goes on), the trans trajectory at 0.3 m/s;
+- ``leave-return``: the object dashes out of the view at 1.5 m/s and comes back elsewhere, turned by
+  25° (Z = 0.6 m);
+- ``events-stop``: every event lost for 0.5 s while the object moves;
+- ``wrong-model``: the tracker is given the drill's model, the object is the box;
+- ``pure-noise``: from 0.6 s to 1.6 s the scene's events are replaced by 10 Mev/s of uniform noise
+  (10⁷ events);
+- ``start-without-pose``: the tracker starts without a pose and must find the object; the loop waits
+  at rest and captures the desired pose once locked.
+
+Columns: the longest loss-detection delay, the longest re-lock time, the longest confident-wrong
+spell (wrong beyond 30 mm / 10° at Z = 0.6 m, scaled with depth, while not flagged lost) and the
+false-loss rate. Episodes are cached like the paper suite's (``episodes/<key>/config_hash``: a rerun
+with the same configuration and code reuses them), so an interrupted run (Ctrl-C) resumes.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import time
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 
-from evservo import _evcore
-from evservo.sim.scenarios import ScenarioRun, run_scenario, scenarios, score
+import evservo
+from evservo.bench.paper import _run_one, code_version, reuse
+from evservo.sim.episode import EpisodeConfig
 
 SOLVERS = ("edft+", "edopts", "edft")
-#: The tracker's default ``lost_below``.
-LOST_BELOW = _evcore.LOST_BELOW
+EVENTS = ("edges", "render")
 
 
-def roc(confidence: np.ndarray, wrong: np.ndarray, threshold: float = LOST_BELOW) -> dict:
-    """ROC of "confidence < t flags a wrong pose": AUC (probability that a random wrong pose scores
-    lower than a random right one, ties half) and TPR / FPR at ``threshold``."""
-    c, w = np.asarray(confidence, float), np.asarray(wrong, bool)
-    n_w, n_r = int(w.sum()), int((~w).sum())
-    if not (n_w and n_r):
-        raise ValueError("the ROC needs both right and wrong poses")
-    ranks = _average_ranks(c)
-    # Mann–Whitney: rank sum of the right poses against the wrong ones.
-    auc = (ranks[~w].sum() - n_r * (n_r + 1) / 2) / (n_r * n_w)
+def scenarios(quick: bool = False) -> dict[str, EpisodeConfig]:
+    """The suite's scenarios by name (edft+, edges source). Disturbances start at 0.6 s, once the
+    target's 0.5 s start ramp is over, and episodes run 0.6 s past them (the issue's re-lock bound is
+    0.3 s). ``quick`` shortens the long occlusion to 1 s."""
+    base = EpisodeConfig(speed_mps=0.3, feedforward=True, end_on_loss=False, reacquire=True)
+    t0, long_occlusion = 0.6, 1.0 if quick else 2.0
     return {
-        "auc": float(auc),
-        "threshold": threshold,
-        "tpr": float(np.mean(c[w] < threshold)),
-        "fpr": float(np.mean(c[~w] < threshold)),
-        "right": n_r,
-        "wrong": n_w,
+        "occlusion-0.5s": replace(base, occlusions=((t0, t0 + 0.5),), duration_s=t0 + 1.1),
+        f"occlusion-{long_occlusion:g}s": replace(
+            base, occlusions=((t0, t0 + long_occlusion),), duration_s=t0 + long_occlusion + 0.6
+        ),
+        "leave-return": replace(base, trajectory="leave-return", speed_mps=1.5, distance_m=0.6, duration_s=2.8),
+        "events-stop": replace(base, dropout_s=(t0, t0 + 0.5), duration_s=t0 + 1.1),
+        "wrong-model": replace(base, model="drill", duration_s=1.0),
+        "pure-noise": replace(base, noise_s=(t0, t0 + 1.0), noise_rate_hz=1e7, duration_s=t0 + 1.2),
+        "start-without-pose": replace(base, start_lost=True, duration_s=1.5),
     }
 
 
-def _average_ranks(x: np.ndarray) -> np.ndarray:
-    order = np.argsort(x, kind="stable")
-    ranks = np.empty(len(x))
-    ranks[order] = np.arange(1, len(x) + 1)
-    _, inv, counts = np.unique(x, return_inverse=True, return_counts=True)
-    sums = np.bincount(inv, weights=ranks)
-    return (sums / counts)[inv]
-
-
-def run(out: Path, quick: bool = False, sources: tuple[str, ...] = ("edges", "render")) -> dict:
-    """Run the suite into ``out`` (``robustness.md``, ``robustness.json``); ``quick``: edft+ only,
-    edges only."""
-    out.mkdir(parents=True, exist_ok=True)
+def plan(quick: bool = False, events: str = "edges") -> list[tuple[str, EpisodeConfig]]:
+    """(scenario, config) of every episode: each scenario for each solver."""
+    if events not in EVENTS:
+        raise ValueError(f"unknown event source {events!r} for the robustness suite; choose one of {EVENTS}")
     solvers = ("edft+",) if quick else SOLVERS
-    rows, labelled = [], []
-    for source in sources[:1] if quick else sources:
-        for name, sc in scenarios().items():
-            for solver in solvers if source == "edges" else ("edft+",):
-                r: ScenarioRun = run_scenario(sc, solver=solver, source=source)
-                rows.append({"scenario": name, "source": source, "solver": solver, **score(r)})
-                if solver == "edft+" and not sc.start_lost:
-                    labelled.append(r)
-    curve = roc(np.concatenate([r.confidence for r in labelled]), np.concatenate([r.wrong for r in labelled]))
-    result = {"rows": rows, "roc": curve}
+    return [
+        (name, replace(cfg, tracker=solver, event_source=events))
+        for name, cfg in scenarios(quick).items()
+        for solver in solvers
+    ]
+
+
+def episode_key(name: str, cfg: EpisodeConfig) -> str:
+    ev = "" if cfg.event_source == "edges" else f"-{cfg.event_source}"
+    return f"{name}-{cfg.tracker}-s{cfg.seed}-d{cfg.duration_s:g}{ev}"
+
+
+def run(out: Path, quick: bool = False, events: str = "edges") -> dict:
+    """Run (or reuse) every episode into ``out/episodes``, write ``robustness.md`` and
+    ``robustness.json``; returns the results. A scenario the tracker cannot run (e.g. starting
+    without a pose before the tracker supports it) is reported with its error, not raised."""
+    from tqdm import tqdm
+
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    code = code_version()
+    rows, reused = [], 0
+    items = plan(quick, events)
+    with tqdm(total=len(items), unit="episode", desc="robustness suite") as bar:
+        for name, cfg in items:
+            key = episode_key(name, cfg)
+            ep = out / "episodes" / key
+            summary = reuse(ep, cfg, code)
+            reused += summary is not None
+            if summary is None:
+                bar.set_postfix_str(key)
+                try:
+                    summary = _run_one(cfg, str(ep))
+                except (ValueError, TypeError) as err:  # the tracker cannot run this scenario
+                    summary = {"failed": str(err)}
+            rows.append(
+                {"scenario": name, "solver": cfg.tracker, "key": key, "config": asdict(cfg), "summary": summary}
+            )
+            bar.update()
+            tqdm.write(_line(rows[-1]))
+    result = {
+        "command": f"evservo bench --suite robustness{' --quick' if quick else ''}"
+        f"{'' if events == 'edges' else f' --events {events}'} --out {out}",
+        "evservo": evservo.__version__,
+        "wall_s": time.perf_counter() - t0,
+        "reused": reused,
+        "rows": rows,
+    }
     (out / "robustness.json").write_text(json.dumps(result, indent=2, default=float) + "\n")
     (out / "robustness.md").write_text(report(result))
     return result
 
 
-def _ms(v: float) -> str:
-    return "–" if not np.isfinite(v) and v != np.inf else ("never" if v == np.inf else f"{v:.0f}")
+def _ms(v: float | None) -> str:
+    if v is None:
+        return "–"
+    return "never" if v == float("inf") else f"{v:.0f}"
+
+
+def _with_ms(cell: str) -> str:
+    return cell if cell in ("–", "never") else f"{cell} ms"
+
+
+def _cells(s: dict) -> list[str]:
+    if "failed" in s:
+        return ["–"] * 6
+    loss = s["loss"]
+    fl = loss["false_loss_rate"]
+    return [
+        _ms(loss["loss_detection_delay_ms"]),
+        _ms(loss["relock_ms"]),
+        _ms(loss["confident_wrong_ms"]),
+        "–" if fl is None else f"{100 * fl:.1f} %",
+        f"{loss['holding_s']:.2f}",
+        f"{s['gt_track_pos_rms_mm']:.0f}",
+    ]
+
+
+def _line(row: dict) -> str:
+    s = row["summary"]
+    if "failed" in s:
+        return f"{row['key']}: could not run: {s['failed']}"
+    c = _cells(s)
+    return (
+        f"{row['key']}: detection {_with_ms(c[0])}, re-lock {_with_ms(c[1])}, confident-wrong {_with_ms(c[2])}, "
+        f"false loss {c[3]}, held {c[4]} s"
+    )
 
 
 def report(result: dict) -> str:
-    c = result["roc"]
+    """The suite's table (markdown)."""
+    reused = f" ({result['reused']} reused from an earlier run)" if result["reused"] else ""
     lines = [
-        f"Confidence ROC (edft+ updates, all sources): AUC {c['auc']:.3f}; at the threshold "
-        f"{c['threshold']:g}: TPR {c['tpr']:.3f} (wrong poses flagged), FPR {c['fpr']:.3f} (right "
-        f"poses flagged), over {c['right']} right and {c['wrong']} wrong updates.",
+        "# evservo robustness suite (issue 12)",
         "",
-        "| scenario | source | solver | detection delay ms | re-lock ms | longest confident-wrong ms | false loss |",
-        "|---|---|---|---|---|---|---|",
+        f"Command: `{result['command']}`; evservo {result['evservo']}, {os.cpu_count()} CPUs, "
+        f"{len(result['rows']) - result['reused']} episodes run in {result['wall_s'] / 60:.1f} min"
+        f"{reused}, load average "
+        f"{os.getloadavg()[1]:.1f} at the end. Closed-loop episodes (our controller) run through their losses. "
+        "Wrong: beyond 30 mm / 10° at Z = 0.6 m (scaled with depth), or the object not seen (hidden, events "
+        "stopped, pure noise, under half of it in the image), or the model not the object's. Times in ms: "
+        "detection = longest delay from a pose turning wrong to `lost`; re-lock = longest time from the object "
+        "being seen again (or the start without a pose) to a right pose not flagged lost; confident-wrong = "
+        "longest spell wrong and not flagged lost. False loss: share of right poses of a visible object flagged "
+        "lost. Held: time the loop did not servo (holding, searching or ramping back in).",
+        "",
+        "| scenario | solver | detection ms | re-lock ms | longest confident-wrong ms | false loss | held s "
+        "| tracking RMS mm | episode |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---|",
     ]
-    for r in result["rows"]:
-        fl = "–" if not np.isfinite(r["false_loss"]) else f"{100 * r['false_loss']:.1f} %"
-        lines.append(
-            f"| {r['scenario']} | {r['source']} | {r['solver']} | {_ms(r['detection_delay_ms'])} | "
-            f"{_ms(r['relock_ms'])} | {r['confident_wrong_ms']:.0f} | {fl} |"
-        )
+    for row in result["rows"]:
+        s = row["summary"]
+        link = f"failed: {s['failed']}" if "failed" in s else f"[summary](episodes/{row['key']}/summary.json)"
+        lines.append(f"| {row['scenario']} | {row['solver']} | {' | '.join(_cells(s))} | {link} |")
+    worst = [r["summary"]["loss"]["confident_wrong_ms"] for r in result["rows"] if "failed" not in r["summary"]]
+    if worst:
+        lines += [
+            "",
+            f"Longest confident-wrong spell over the suite: {np.max(worst):.0f} ms (issue 12's bound: 100 ms).",
+        ]
     return "\n".join(lines) + "\n"

@@ -7,10 +7,10 @@ import os
 import shutil
 from pathlib import Path
 
-SUITES = ("latency", "paper", "objects")
+SUITES = ("latency", "paper", "objects", "robustness")
 #: Each suite's report files, removed at the start so an interrupted run leaves none of an earlier one.
 REPORTS = {"latency": ("latency.md", "latency.json"), "paper": ("report.md", "results.json"),
-           "objects": ("objects.md", "objects.json")}
+           "objects": ("objects.md", "objects.json"), "robustness": ("robustness.md", "robustness.json")}
 #: Marks a directory of copied report files as ours to replace on the next run.
 STAMP = "SOURCE.txt"
 
@@ -20,6 +20,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.jobs < 1:
         raise ValueError("--jobs must be at least 1")
+    if args.cache is not None and args.suite != "objects":
+        raise ValueError("--cache applies to the objects suite only")
     # Checked before any episode runs; the paper suite's finished episodes in it are reused.
     prepare_out_dir(args.out, stale=REPORTS[args.suite])
     if args.results is not None:
@@ -34,12 +36,22 @@ def run(args: argparse.Namespace) -> int:
     if args.suite == "objects":
         from evservo.bench import objects
 
-        objects.run(Path(args.out), quick=args.quick)
+        objects.run(Path(args.out), quick=args.quick, cache=None if args.cache is None else Path(args.cache))
         print(f"wrote {Path(args.out) / 'objects.md'} and objects.json")
         _refresh(args, "objects", Path(args.out) / "objects.md")
         return 0
+    if args.suite == "robustness":
+        from evservo.bench import robustness
+
+        if args.scheduler is not None or args.jobs != 1:
+            raise ValueError("--scheduler and --jobs apply to the paper suite only")
+        robustness.run(Path(args.out), quick=args.quick, events=args.events)
+        print(f"wrote {Path(args.out) / 'robustness.md'} and robustness.json")
+        section = "robustness" if args.events == "edges" else f"robustness-{args.events}"
+        _refresh(args, section, Path(args.out) / "robustness.md")
+        return 0
     if args.events != "edges" or args.scheduler is not None:
-        raise ValueError("--events and --scheduler apply to the paper suite only")
+        raise ValueError("--events applies to the paper and robustness suites, --scheduler to the paper suite only")
     from evservo.bench import latency
 
     samples = Path(os.environ.get("EVSERVO_SAMPLES", Path(__file__).resolve().parents[4] / "shared/event-samples"))
@@ -69,7 +81,7 @@ def _refresh(args: argparse.Namespace, section: str, report: Path) -> None:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    b = sub.add_parser("bench", help="benchmark suites: latency, paper, objects")
+    b = sub.add_parser("bench", help="benchmark suites: latency, paper, objects, robustness")
     b.add_argument("--suite", choices=SUITES, default="latency")
     b.add_argument("--out", default="out/bench", help="output directory")
     b.add_argument("--quick", action="store_true", help="short runs, one seed (for tests)")
@@ -78,12 +90,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--events",
         choices=("edges", "render"),
         default="edges",
-        help="paper suite event source: the idealised edges, or the rendered camera (lab preset, arms drawn)",
+        help="paper and robustness suites' event source: the idealised edges, or the rendered camera (paper "
+        "suite: lab preset, arms drawn)",
     )
     b.add_argument(
         "--scheduler",
         metavar="tcp://HOST:PORT",
         help="run the paper suite's episodes on this running dask.distributed cluster instead of --jobs",
+    )
+    b.add_argument(
+        "--cache",
+        metavar="DIR",
+        help="objects suite: keep the rendered recordings here and reuse them (to compare tracker changes)",
     )
     b.add_argument(
         "--results",

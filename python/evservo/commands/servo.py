@@ -5,6 +5,7 @@ itself is :mod:`evservo.realloop`)."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -26,8 +27,25 @@ PAPER_TABLE = {
 SIM_ONLY = {
     "object": "object", "trajectory": "trajectory", "speed": "speed_mps", "rot_rate": "rot_rate_dps",
     "distance": "distance_m", "seed": "seed", "cost_model": "cost_model", "dropout": "dropout_s",
-    "events": "event_source", "render_arms": "render_arms", "predictor": "predictor",
+    "events": "event_source", "render_arms": "render_arms", "predictor": "predictor", "occlude": "occlusions",
 }  # fmt: skip
+
+
+def parse_spells(texts: list[str], option: str = "--occlude") -> tuple[tuple[float, float], ...]:
+    """``T0:T1`` spells in seconds (each option a comma list of them), sorted; errors name ``option``."""
+    out = []
+    for item in (part.strip() for text in texts for part in text.split(",")):
+        a, sep, b = item.partition(":")
+        try:
+            spell = (float(a), float(b))
+        except ValueError:
+            spell = None
+        if not sep or spell is None or not (all(map(math.isfinite, spell)) and 0 <= spell[0] < spell[1]):
+            raise ValueError(
+                f"{option} takes T0:T1 in seconds with 0 <= T0 < T1 (comma list or repeated), got {item!r}"
+            )
+        out.append(spell)
+    return tuple(sorted(out))
 
 
 def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> None:
@@ -53,7 +71,9 @@ def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> Non
     p.add_argument("--object", help=f"box, drill, football or a mesh path {d('object')}")
     p.add_argument("--tracker", default=base["tracker"], choices=SOLVERS)
     p.add_argument(
-        "--trajectory", help=f"trans, trans-rot, circle, figure8, stop-go, reversal or a CSV {d('trajectory')}"
+        "--trajectory",
+        help=f"trans, trans-rot, circle, figure8, stop-go, reversal, leave-return (leaves the view and comes back "
+        f"elsewhere) or a CSV {d('trajectory')}",
     )
     p.add_argument("--speed", type=float, help=f"peak target speed, m/s {d('speed_mps')}")
     p.add_argument("--rot-rate", type=float, help=f"peak target rotation rate (trans-rot), deg/s {d('rot_rate_dps')}")
@@ -83,6 +103,13 @@ def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> Non
     p.add_argument("--cost-model", choices=COST_MODELS, help=f"tracker time charged to the clock {d('cost_model')}")
     p.add_argument("--dropout", type=float, nargs=2, metavar=("START", "END"), help="lose all events in [START, END) s")
     p.add_argument(
+        "--occlude",
+        action="append",
+        metavar="T0:T1",
+        help="hide the object fully in [T0, T1) s (no object events; repeat or comma list); the episode then "
+        "runs through losses and scores the tracker's lost flag",
+    )
+    p.add_argument(
         "--events",
         choices=("edges", "render"),
         help=f"event source: the model's edges (fast) or the rendered event camera (slow) {d('event_source')}",
@@ -105,11 +132,17 @@ def sim_options_given(args: argparse.Namespace) -> list[str]:
 def config_from_args(args: argparse.Namespace):
     """The :class:`~evservo.sim.episode.EpisodeConfig` of parsed options."""
     from evservo.sim.episode import EpisodeConfig
+    from evservo.trajectories import LEAVING_KINDS
 
     values = dict(args.episode_defaults)
     values.update({field: getattr(args, opt) for opt, field in SIM_ONLY.items() if getattr(args, opt) is not None})
     if values.get("dropout_s") is not None:
         values["dropout_s"] = tuple(values["dropout_s"])
+    if values.get("occlusions") is not None:
+        values["occlusions"] = parse_spells(values["occlusions"])
+    # Occlusions and trajectories leaving the view make losses part of the episode: run through them.
+    if values.get("occlusions") or values.get("trajectory") in LEAVING_KINDS:
+        values.setdefault("end_on_loss", False)
     # The parsed values win over the command's defaults (demo's duration_s and feedforward among them).
     values.update(tracker=args.tracker, duration_s=args.duration, feedforward=args.feedforward)
     return EpisodeConfig(**values)
@@ -210,10 +243,23 @@ def print_summary(s: dict) -> None:
           f"Panda {t['panda_rate_hz']:g} Hz + {t['panda_latency_ms']:g} ms, "
           f"UR5e {t['ur_rate_hz']:g} Hz + {t['ur_latency_ms']:g} ms; command cut to the arm's reach "
           f"{100 * s['arm_limited_fraction']:.0f} % of the time")  # fmt: skip
+    loss = s.get("loss") or {}
+    if loss.get("wrong_spells") or loss.get("holding_s") or c.get("occlusions") or c.get("start_lost"):
+        print(f"loss: detection delay {_ms(loss['loss_detection_delay_ms'])}, re-lock {_ms(loss['relock_ms'])}, "
+              f"longest confident-wrong {_ms(loss['confident_wrong_ms'])} ({_ms(loss['confident_wrong_total_ms'])} in "
+              f"all), false loss {_pct(loss['false_loss_rate'])}, loop held {loss['holding_s']:.2f} s")  # fmt: skip
     from evservo.runtime.watchdog import describe_spell
 
     for w in s["watchdog"]:
         print(describe_spell(w))
+
+
+def _ms(v: float | None) -> str:
+    return "n/a" if v is None else ("never" if v == float("inf") else f"{v:.0f} ms")
+
+
+def _pct(v: float | None) -> str:
+    return "n/a" if v is None else f"{100 * v:.1f} %"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -255,7 +301,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="live camera, or an event file replayed at real time")  # fmt: skip
     r.add_argument("--model", help="object: built-in name (box, drill, football) or mesh path (default: config's)")
     r.add_argument("--config", metavar="RIG.yaml", help="rig config: camera intrinsics, hand-eye T_e_c, limits")
-    r.add_argument("--init-pose", metavar="x,y,z,qx,qy,qz,qw", help="object in camera at start (default: config's)")
+    r.add_argument(
+        "--init-pose",
+        metavar="x,y,z,qx,qy,qz,qw",
+        help="object in camera at start (default: config's, else none: the tracker searches and the arm holds "
+        "still until it locks)",
+    )
     r.add_argument("--desired-pose", metavar="x,y,z,qx,qy,qz,qw",
                    help="object in camera to servo to (default: the tracked pose when servoing starts)")  # fmt: skip
     r.add_argument(

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -105,10 +106,13 @@ def _run_real(args: argparse.Namespace) -> int:
             t_first = io.info(args.camera)["t_first_us"] or 0
             init = rec.gt_T[int(np.argmin(np.abs(rec.gt_t_us - t_first)))]
         if init is None:
-            raise InputError("give --init-pose x,y,z,qx,qy,qz,qw (object in camera) or object.init_pose in the config")
+            print("note: no start pose (--init-pose, object.init_pose in the config): the tracker searches for the "
+                  "object and the arm holds still until it has locked; the desired pose is captured then")  # fmt: skip
+            cfg = replace(cfg, search=True)
         if desired is None and rig is not None:
             desired = rig.desired_pose
-        tracker = Tracker(camera, model, init, solver=args.tracker)
+        # Re-acquisition on: after a loss the loop holds still until the tracker has found the object again.
+        tracker = Tracker(camera, model, init, solver=args.tracker, reacquire=True)
         viewer = open_viewer(args.viewer, args.viewer_save)  # before the arm: a missing rerun is bad input
         try:
             arm = open_arm(spec, rig, args.dry_run, args.realtime or "enforce")
@@ -118,7 +122,8 @@ def _run_real(args: argparse.Namespace) -> int:
             raise
         meta = {
             "robot": args.robot, "camera": args.camera, "model": str(model), "tracker": args.tracker,
-            "rig_config": str(rig.path) if rig else None, "T_c_o_init": init.tolist(), "replay_speed": speed,
+            "rig_config": str(rig.path) if rig else None, "T_c_o_init": None if init is None else init.tolist(),
+            "replay_speed": speed,
         }  # fmt: skip
         print(
             f"servo (real): robot {args.robot}{' DRY RUN (the arm will not move)' if args.dry_run else ''}, "

@@ -82,7 +82,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--frontend", default="scarf", choices=FRONTENDS)
     t.add_argument("--compare", action="store_true", help="run edft+, edopts and edft; outputs in OUT/<solver>")
     t.add_argument("--model", help="object: built-in name or mesh path (default: the recording's)")
-    t.add_argument("--init-pose", help="initial T_c_o as x,y,z,qx,qy,qz,qw (default: the recording's ground truth)")
+    t.add_argument(
+        "--init-pose",
+        help="initial T_c_o as x,y,z,qx,qy,qz,qw (default: the recording's ground truth, else none: the tracker "
+        "starts lost and searches for the object)",
+    )
     t.add_argument("--topic", help="the event topic of a ROS bag holding several")
     t.add_argument("--camera", help="camera file (YAML/JSON; evservo's layout, OpenCV YAML or ROS camera_info)")
     t.add_argument("--batch-us", type=int, default=1000, help="events per update, as a time slice (µs)")

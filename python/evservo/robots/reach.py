@@ -1,7 +1,7 @@
 """What a simulated arm can deliver now: the camera twist nearest a wanted one within the joint limits.
 
 The controller asks for a camera twist; the arm's own resolved-rate QP (:mod:`evservo.robots.ik`) then
-realises what its joint velocity, acceleration and position limits allow, weighting all components
+realises what its joint velocity, acceleration, jerk and position limits allow, weighting all components
 alike. Where the limits bite, that silently drops part of the command, and a controller integrating
 its own commands believes it moves faster than it does. :class:`ReachableTwist` lets the controller
 ask first, with its own priorities (a weight on each component of the twist), and command only what
@@ -45,7 +45,7 @@ class ReachableTwist:
         arm = self.arm
         J = self.camera_jacobian()
         qd = solve_joint_velocities(J, v_c_w, arm.joint_positions(), arm.qd, dt_s, arm.limits, damping=1e-9,
-                                    weights=W)  # fmt: skip
+                                    weights=W, qdd=arm.qdd)  # fmt: skip
         residual = J @ qd - v_c_w
         self.saturated = float(residual @ W @ residual) > self.tol**2 * max(float(v_c_w @ W @ v_c_w), 1e-12)
         return J @ qd if self.saturated else np.asarray(v_c_w, dtype=float)

@@ -2,10 +2,12 @@
 
 Kinematic, not dynamic: joints are position-controlled and follow the commanded joint velocities
 exactly, as a stiff industrial joint controller would. Each command (a twist, resolved by the QP of
-:mod:`evservo.robots.ik`) sets a joint-velocity setpoint held until the next command; every physics step
-moves the joint velocities towards it at no more than the acceleration limit (the rate limiter of the
-Franka and UR controllers), clips them to the velocity limit and integrates the positions, clamped to
-their range. Several arms may share one ``MjModel``/``MjData``; whoever owns the data calls
+:mod:`evservo.robots.ik` within the joint velocity, acceleration and jerk limits) sets a joint-velocity
+setpoint to be reached by the end of the command's period and held until the next command; every
+physics step moves the joint velocities towards it with the acceleration changing by no more than the
+jerk limit and staying within the acceleration limit (the rate limiter of the Franka and UR
+controllers), clips them to the velocity limit and integrates the positions, clamped to their range.
+Several arms may share one ``MjModel``/``MjData``; whoever owns the data calls
 :meth:`SimArm.integrate` on each and then :func:`forward` once.
 """
 
@@ -64,7 +66,9 @@ class SimArm:
             raise ValueError(f"body not in model: {ee_body}")
         self._T_e_c = geometry.as_pose(np.eye(4) if T_e_c is None else T_e_c, "T_e_c")
         self.qd = np.zeros(limits.n)  # joint velocities being applied (rad/s)
+        self.qdd = np.zeros(limits.n)  # joint accelerations of the last physics step (rad/s²)
         self.qd_target = np.zeros(limits.n)  # setpoint of the last command (rad/s)
+        self._target_in_s = 0.0  # time left to reach the setpoint (s)
         self.q_rest = self.joint_positions() if q_rest is None else np.asarray(q_rest, dtype=float)
         self._scratch = mujoco.MjData(model)
 
@@ -98,17 +102,19 @@ class SimArm:
 
     def command_twist(self, v_e_w: np.ndarray, dt_s: float) -> None:
         """Resolve end-effector twist ``v_e_w`` (world frame, (6,)) into a joint-velocity setpoint that
-        respects the joint limits over the next ``dt_s`` seconds."""
+        respects the joint limits over the next ``dt_s`` seconds, reached at their end."""
         v = np.asarray(v_e_w, dtype=float).reshape(6)
         if not np.all(np.isfinite(v)) or not dt_s > 0:
             raise ValueError("twist must be finite and dt_s > 0")
         self.qd_target = solve_joint_velocities(
-            self.jacobian(), v, self.joint_positions(), self.qd, dt_s, self.limits, q_rest=self.q_rest
+            self.jacobian(), v, self.joint_positions(), self.qd, dt_s, self.limits, q_rest=self.q_rest, qdd=self.qdd
         )
+        self._target_in_s = dt_s
 
     def stop(self) -> None:
-        """Zero the setpoint: the joints decelerate at their acceleration limits."""
+        """Zero the setpoint: the joints decelerate at their acceleration (and jerk) limits."""
         self.qd_target = np.zeros(self.limits.n)
+        self._target_in_s = 0.0
 
     def set_joint_positions(self, q: np.ndarray) -> None:
         """Teleport the joints to ``q`` (rad, within limits) at rest; updates the kinematics."""
@@ -117,17 +123,23 @@ class SimArm:
             raise ValueError("joint positions outside the limits")
         self.data.qpos[self._qadr] = q
         self.qd[:] = 0.0
+        self.qdd[:] = 0.0
         self.qd_target[:] = 0.0
         forward(self.model, self.data)
 
     def integrate(self, h_s: float) -> None:
         """Advance the joints by one physics step of ``h_s`` seconds (kinematics not updated)."""
         L = self.limits
-        step = np.clip(self.qd_target - self.qd, -L.qdd_max * h_s, L.qdd_max * h_s)
-        self.qd = np.clip(self.qd + step, -L.qd_max, L.qd_max)
+        wanted = (self.qd_target - self.qd) / max(self._target_in_s, h_s)
+        self._target_in_s = max(self._target_in_s - h_s, 0.0)
+        jerk = L.qddd_max * h_s
+        qdd = np.clip(np.clip(wanted, self.qdd - jerk, self.qdd + jerk), -L.qdd_max, L.qdd_max)
+        qd = np.clip(self.qd + qdd * h_s, -L.qd_max, L.qd_max)
+        self.qdd, self.qd = (qd - self.qd) / h_s, qd
         q = self.data.qpos[self._qadr] + self.qd * h_s
         at_limit = (q <= L.q_min) | (q >= L.q_max)
         self.qd[at_limit] = 0.0
+        self.qdd[at_limit] = 0.0
         self.data.qpos[self._qadr] = np.clip(q, L.q_min, L.q_max)
 
     def fk(self, q: np.ndarray) -> np.ndarray:

@@ -40,8 +40,10 @@ def track_file(
     """Track one recording with one solver and write the outputs to ``out``; returns the summary.
 
     ``model``, ``init_pose`` (``T_c_o`` at the first event, 4×4) and ``camera`` default to what a
-    simulated recording carries (the IMX636 for a bare 1280×720 file); ``notes`` collects lines about
-    such choices for the user. ``viewer`` (a :class:`~evservo.viewer.RerunViewer`) is shown every
+    simulated recording carries (the IMX636 for a bare 1280×720 file); without a start pose the tracker
+    starts lost and searches the image for the object (``first_lock_s`` in the summary: seconds from
+    the first event to the first update not flagged lost). ``notes`` collects lines about such choices
+    for the user. ``viewer`` (a :class:`~evservo.viewer.RerunViewer`) is shown every
     update; the caller closes it. ``topic`` picks the event topic of a ROS bag."""
     from tqdm import tqdm
 
@@ -58,10 +60,10 @@ def track_file(
     obj = model or (rec.object if rec else None)
     if obj is None:
         raise ValueError(f"{path} has no object model: give --model")
-    if init_pose is None:
-        if rec is None:
-            raise ValueError(f"{path} has no ground truth: give --init-pose x,y,z,qx,qy,qz,qw")
+    if init_pose is None and rec is not None:
         init_pose = rec.gt_T[0]
+    if init_pose is None and notes is not None:
+        notes.append(f"{path} has no start pose: the tracker starts lost and searches for the object")
     if meta["n_events"] == 0:
         raise ValueError(f"{path} holds no events")
     if batch_us < 1:
@@ -111,6 +113,7 @@ def track_file(
         n_updates=len(ts), n_events=int(np.sum(counts)), n_time_clamped=n_clamped, solve_s=solve_s,
         tracker_rate_hz=len(ts) / solve_s if solve_s > 0 else 0.0, lost=bool(lost[-1]) if len(lost) else False,
         lost_fraction=float(lost.mean()) if len(lost) else 0.0, width=cam.width, height=cam.height,
+        started_lost=init_pose is None, first_lock_s=_first_lock_s(ts, lost, t_first),
     )  # fmt: skip
     err_mm = err_deg = None
     if rec is not None and len(ts):
@@ -130,6 +133,12 @@ def track_file(
     _plot_error(out / "error.png", ts, err_mm, err_deg, lost, solver)
     write_summary(out / "summary.json", summary)  # last: a summary.json is there only when the others are
     return summary
+
+
+def _first_lock_s(ts: np.ndarray, lost: np.ndarray, t_first_us: int) -> float | None:
+    """Seconds from the first event to the first update not flagged lost (None if never)."""
+    locked = np.flatnonzero(~lost)
+    return float((ts[locked[0]] - t_first_us) * 1e-6) if len(locked) else None
 
 
 def _write_poses(path: Path, ts, T_est, lost, err_mm, err_deg) -> None:

@@ -43,6 +43,7 @@ import numpy as np
 
 from evservo import _evcore, geometry, trajectories
 from evservo.control import Pbvs
+from evservo.control.hold import LossHold
 from evservo.geometry import pose_errors, rotation_from_first_rad
 from evservo.interrupt import INTERRUPTED, StopOnInterrupt
 from evservo.limits import CartesianLimits
@@ -51,13 +52,15 @@ from evservo.robots import PoseFollower, shift_twist
 from evservo.robots.delay import DelayedArm
 from evservo.robots.limits import PANDA_CARTESIAN
 from evservo.robots.reach import ReachableTwist
+from evservo.runtime.loss import loss_metrics, wrong_pose
 from evservo.runtime.metrics import estimate_lag_s, rms
 from evservo.runtime.report import plot_motion, write_log, write_summary
 from evservo.runtime.watchdog import WatchdogSpell, spells_from_flags
 from evservo.sim.arms import ArmMeshes
+from evservo.sim.disturb import Disturbances, check_spells
 from evservo.sim.scene import DualArmScene
 from evservo.sim.sources import EVENT_SOURCES, RENDERED_SOURCES, EventSource, make_event_source
-from evservo.tracking import FRONTENDS, SOLVERS, Tracker
+from evservo.tracking import FRONTENDS, SOLVERS, Tracker, model_point_set
 
 COST_MODELS = ("measured", "fixed")
 PREDICTORS = ("velocity", "acceleration")
@@ -82,8 +85,9 @@ class EpisodeConfig:
     ``tracker``: solver (``edft+``, ``edopts``, ``edft``).
     ``cost_model``: ``measured`` charges the tracker's compute time to the simulated clock (CPU time
     of the calling thread: the solver is single-threaded, and on a shared machine wall time would
-    also charge whatever other processes took); ``fixed`` charges ``lm_cost_s`` per LM step and
-    ``search_cost_s`` per search step (reproducible).
+    also charge whatever other processes took); ``fixed`` charges ``lm_cost_s`` per LM step,
+    ``search_cost_s`` per search step and ``ingest_event_cost_s`` per ingested event (reproducible).
+    Ingest is charged to the producer's timeline, the steps to the solver's (:class:`ClockedTracker`).
     ``dropout_s``: ``(start, end)`` window whose events are lost (sensor or link failure).
     ``lost_pos_m``, ``lost_rot_deg``: tracking counts as lost, and the episode ends, once the estimate
     is this far from the truth at the estimate's time.
@@ -100,6 +104,14 @@ class EpisodeConfig:
     ``render_arms``: draw the UR5e and the Panda into the rendered event camera too (their moving
     links occlude the scene and fire events; see :mod:`evservo.sim.arms`); needs ``event_source``
     ``"render"``.
+    Robustness (issue 12; see :mod:`evservo.sim.disturb`): ``occlusions`` full occlusion spells of the
+    object; ``noise_s`` a spell of pure noise at ``noise_rate_hz`` (events/s) instead of the scene;
+    ``model`` the tracker's model when it is not the object's (a wrong model); ``start_lost`` the
+    tracker starts without a pose and searches (the desired pose is captured once locked);
+    ``reacquire`` the tracker renders its viewpoint template bank at start-up so that it finds the
+    object again by itself after a loss (always on with ``start_lost``);
+    ``end_on_loss`` False runs the episode to its end through losses, scoring the tracker's ``lost``
+    flag (``summary["loss"]``) instead of ending at the first estimate off the truth.
     """
 
     object: str = "box"
@@ -116,6 +128,7 @@ class EpisodeConfig:
     cost_model: str = "measured"
     lm_cost_s: float = 0.001
     search_cost_s: float = 0.0004
+    ingest_event_cost_s: float = 25e-9
     event_source: str = "edges"
     sensing_latency_s: float = 0.0035
     control_period_s: float = 0.002
@@ -132,6 +145,13 @@ class EpisodeConfig:
     render_arms: bool = False
     max_image_rate_rad_s: float = 0.5
     predictor: str = "velocity"
+    occlusions: tuple[tuple[float, float], ...] = ()
+    noise_s: tuple[float, float] | None = None
+    noise_rate_hz: float = 1e7
+    model: str | None = None
+    start_lost: bool = False
+    reacquire: bool = False
+    end_on_loss: bool = True
 
     def __post_init__(self) -> None:
         if self.tracker not in SOLVERS:
@@ -157,6 +177,8 @@ class EpisodeConfig:
             raise ValueError(f"duration must be at most {MAX_DURATION_S:g} s (per-tick record), got {self.duration_s}")
         if not (self.lm_cost_s > 0 and self.search_cost_s > 0 and self.sensing_latency_s >= 0):
             raise ValueError("step costs must be > 0 and the latency >= 0")
+        if not self.ingest_event_cost_s >= 0:
+            raise ValueError(f"ingest_event_cost_s must be >= 0, got {self.ingest_event_cost_s}")
         for name in ("control_period_s", "ur_period_s", "panda_period_s"):
             if round(getattr(self, name) * 1e6) % TICK_US or getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be a positive multiple of 1 ms")
@@ -171,6 +193,10 @@ class EpisodeConfig:
             )
         if self.dropout_s is not None and not self.dropout_s[0] < self.dropout_s[1]:
             raise ValueError("dropout_s must be (start, end) with start < end")
+        check_spells(self.occlusions, "occlusions")
+        check_spells(() if self.noise_s is None else (self.noise_s,), "noise_s")
+        if not (np.isfinite(self.noise_rate_hz) and self.noise_rate_hz >= 0):
+            raise ValueError(f"noise_rate_hz must be finite and >= 0, got {self.noise_rate_hz}")
 
 
 @dataclass
@@ -184,7 +210,10 @@ class EpisodeResult:
     command was cut to what the Panda can deliver. ``joint_speed_ratio``: the Panda's fastest joint
     against its velocity limit (1 = at the limit). ``ended``: ``"duration"``,
     ``"tracking lost"`` or ``"arm error: …"``. ``steps``: tracker steps published, per kind.
-    ``busy_s``: tracker time charged to the clock.
+    ``busy_s``: solver time charged to the clock; ``ingest_busy_s``: producer (ingest) time charged.
+    ``lost``: the tracker's flag on that estimate; ``holding``: the loop was not servoing on it
+    (:class:`~evservo.control.hold.LossHold` holding, searching or ramping back in); ``seen``: the
+    object's events reached the tracker and at least half of it was in the image.
     """
 
     config: EpisodeConfig
@@ -206,6 +235,10 @@ class EpisodeResult:
     wall_s: float
     events: int
     watchdog_events: list[WatchdogSpell] = field(default_factory=list)
+    lost: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    holding: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    seen: np.ndarray = field(default_factory=lambda: np.ones(0, bool))
+    ingest_busy_s: float = 0.0
 
     @property
     def T_c_o_true(self) -> np.ndarray:
@@ -214,52 +247,79 @@ class EpisodeResult:
 
 
 class ClockedTracker:
-    """The synchronous :class:`~evservo.tracking.Tracker` run on the simulated clock (µs).
+    """The synchronous :class:`~evservo.tracking.Tracker` run on the simulated clock (µs), with the
+    threaded tracker's two timelines.
 
+    On a rig, ingest (validation, undistortion, the SCARF insert: ``Tracker.push``) runs on the
+    producer's core, in parallel with the solver, which only reads the active set. So each batch is
+    ingested on a *producer* timeline: it starts when it has arrived and the previous batch is done,
+    and takes its own cost there. The solver's timeline is charged only its steps; a step sees every
+    batch whose ingest has started by the step's start (SCARF is written in place, so a batch being
+    ingested is already partly visible to a concurrent reader). With ``thin``, the producer thins
+    each batch under overload as ``Tracker.push`` does (within ``ingest_core_share`` of its core, by
+    measured costs), so it keeps up with the stream and the solver sees fresh events; without, a
+    producer slower than the stream falls behind.
     Batches are queued with their arrival time; :meth:`advance` runs the steps whose start time has
-    come, charging each its cost, and :meth:`latest` returns what had been published by a given time.
+    come, and :meth:`latest` returns what had been published by a given time.
     """
 
-    def __init__(self, tracker: Tracker, cost: Callable[[str, float], float]) -> None:
-        """``cost(kind, cpu_s)``: seconds to charge for a step of ``kind`` ("lm"/"search") that took
-        ``cpu_s`` of this thread's CPU time (ingest included)."""
+    def __init__(self, tracker: Tracker, cost: Callable[[str, float, int], float], thin: bool = True) -> None:
+        """``cost(kind, cpu_s, n_events)``: seconds to charge for ``kind`` "lm" or "search" (a solver
+        step) or "ingest" (a batch of ``n_events`` on the producer), which took ``cpu_s`` of this
+        thread's CPU time."""
         self.tracker = tracker
         self.cost = cost
+        self.thin = thin
         self.cycle_len = tracker.cycle_len
         self.free_us = 0  # when the solver can start its next step
+        self.producer_free_us = -(2**62)  # when the producer can start ingesting the next batch
         self._queue: deque[tuple[int, np.ndarray]] = deque()
         self._pending: deque[tuple[int, _evcore.Estimate]] = deque()
         self._latest = tracker.step(0)
         self._steps_without_events = self.cycle_len  # nothing to do before the first batch
         self.steps = {"lm": 0, "search": 0}
-        self.busy_us = 0
+        self.busy_us = 0  # solver time charged
+        self.ingest_busy_us = 0  # producer time charged
 
     def deliver(self, arrival_us: int, events: np.ndarray) -> None:
         """Queue a batch that reaches the tracker at ``arrival_us`` (non-decreasing over calls)."""
         if len(events):
             self._queue.append((arrival_us, events))
 
+    def _next_ingest_us(self) -> int | None:
+        """When the producer starts ingesting the next queued batch (None: nothing queued)."""
+        return max(self._queue[0][0], self.producer_free_us) if self._queue else None
+
+    def _ingest_until(self, now_us: int) -> bool:
+        """Ingest, on the producer's timeline, every batch whose ingest starts by ``now_us``."""
+        ingested = False
+        while (start := self._next_ingest_us()) is not None and start <= now_us:
+            events = self._queue.popleft()[1]
+            started = time.thread_time()
+            self.tracker.ingest(events, thin=self.thin)
+            cost_us = max(1, round(self.cost("ingest", time.thread_time() - started, len(events)) * 1e6))
+            self.producer_free_us = start + cost_us
+            self.ingest_busy_us += cost_us
+            ingested = True
+        return ingested
+
     def advance(self, now_us: int) -> None:
         """Run every step that starts by ``now_us``."""
         while True:
             if self._steps_without_events >= self.cycle_len:
                 # Nothing new since a full cycle: the field cannot change, wait for the next batch.
-                if not self._queue or self._queue[0][0] > now_us:
+                start = self._next_ingest_us()
+                if start is None or start > now_us:
                     self.free_us = max(self.free_us, now_us)
                     return
-                self.free_us = max(self.free_us, self._queue[0][0])
+                self.free_us = max(self.free_us, start)
             if self.free_us > now_us:
                 return
-            started = time.thread_time()
-            arrived = []
-            while self._queue and self._queue[0][0] <= self.free_us:
-                arrived.append(self._queue.popleft()[1])
-            if arrived:
-                self.tracker.ingest(np.concatenate(arrived))
+            if self._ingest_until(self.free_us):
                 self._steps_without_events = 0
+            started = time.thread_time()
             est = self.tracker.step(1)
-            cpu = time.thread_time() - started
-            cost_us = max(1, round(self.cost(est.step, cpu) * 1e6))
+            cost_us = max(1, round(self.cost(est.step, time.thread_time() - started, 0) * 1e6))
             self.free_us += cost_us
             self.busy_us += cost_us
             self._steps_without_events += 1
@@ -316,10 +376,28 @@ def _primed_source(
     return source
 
 
-def _cost_model(config: EpisodeConfig) -> Callable[[str, float], float]:
+def _view_test(camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, seed: int) -> Callable[[np.ndarray], bool]:
+    """``in_view(T_c_o)``: at least half of the object's edge points (200 of them) are in front of the
+    camera and project into the image."""
+    points = model_point_set(camera, obj, T_c_o0, n_points=200, seed=seed)
+
+    def in_view(T_c_o: np.ndarray) -> bool:
+        p = points @ T_c_o[:3, :3].T + T_c_o[:3, 3]
+        front = p[:, 2] > 1e-3
+        if np.mean(front) < 0.5:
+            return False
+        uv = camera.project(p[front])
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+        return bool(np.sum(inside) >= 0.5 * len(points))
+
+    return in_view
+
+
+def _cost_model(config: EpisodeConfig) -> Callable[[str, float, int], float]:
     if config.cost_model == "measured":
-        return lambda _kind, cpu_s: cpu_s
-    return lambda kind, _cpu_s: config.lm_cost_s if kind == "lm" else config.search_cost_s
+        return lambda _kind, cpu_s, _n: cpu_s
+    fixed = {"lm": config.lm_cost_s, "search": config.search_cost_s, "ingest": 0.0}
+    return lambda kind, _cpu_s, n: fixed[kind] + (n * config.ingest_event_cost_s if kind == "ingest" else 0.0)
 
 
 def run_episode(
@@ -337,10 +415,12 @@ def run_episode(
     T_c_o0 = scene.reset_to_start(cfg.distance_m, cfg.view_rotvec_rad)
     T_w_o0 = scene.T_w_o()
     camera = _evcore.Camera.imx636()
-    core = Tracker(camera, cfg.object, T_c_o0, solver=cfg.tracker, frontend=cfg.frontend, seed=cfg.seed)
+    core = Tracker(camera, cfg.model or cfg.object, None if cfg.start_lost else T_c_o0, solver=cfg.tracker,
+                   frontend=cfg.frontend, seed=cfg.seed, reacquire=cfg.reacquire or cfg.start_lost)  # fmt: skip
     arms = ArmMeshes(scene) if cfg.render_arms else None
     source = _primed_source(cfg, camera, T_c_o0, core, arms)
-    tracker = ClockedTracker(core, _cost_model(cfg))
+    # Thinning decides by measured costs: the fixed cost model keeps every event to stay reproducible.
+    tracker = ClockedTracker(core, _cost_model(cfg), thin=cfg.cost_model == "measured")
     traj = trajectories.make_trajectory(cfg.trajectory, speed_mps=cfg.speed_mps, rot_rate_dps=cfg.rot_rate_dps)
     ur = DelayedArm(scene.ur, cfg.ur_latency_s)
     panda = DelayedArm(scene.panda, cfg.panda_latency_s)
@@ -360,16 +440,21 @@ def run_episode(
         lookahead_s=cfg.panda_latency_s,
         predict_accel=cfg.predictor == "acceleration",
     )
-    # The paper captures the tracker's pose at servo start as the desired pose.
-    T_c_o_des = tracker.latest(0).T_c_o
-    pbvs.start(scene.T_w_c(), T_c_o_des, t_s=0.0)
+    hold = LossHold(pbvs)
+    if cfg.start_lost:
+        hold.search()  # the desired pose is captured once the tracker has locked
+    else:
+        # The paper captures the tracker's pose at servo start as the desired pose.
+        hold.start(scene.T_w_c(), tracker.latest(0).T_c_o, t_s=0.0)
+    disturb = Disturbances(camera.width, camera.height, cfg.occlusions, cfg.dropout_s, cfg.noise_s,
+                           cfg.noise_rate_hz, cfg.seed)  # fmt: skip
+    in_view = _view_test(camera, cfg.object, T_c_o0, cfg.seed)
 
     n = round(cfg.duration_s * 1e6) // TICK_US
     ctrl_every = round(cfg.control_period_s * 1e6) // TICK_US
     ur_every = round(cfg.ur_period_s * 1e6) // TICK_US
     panda_every = round(cfg.panda_period_s * 1e6) // TICK_US
     latency_us = round(cfg.sensing_latency_s * 1e6)
-    drop = None if cfg.dropout_s is None else (round(cfg.dropout_s[0] * 1e6), round(cfg.dropout_s[1] * 1e6))
     lost_rot = np.deg2rad(cfg.lost_rot_deg)
     rec = {
         "T_w_o": np.empty((n, 4, 4)),
@@ -381,9 +466,12 @@ def run_episode(
         "watchdog": np.zeros(n, bool),
         "arm_limited": np.zeros(n, bool),
         "joint_speed_ratio": np.zeros(n),
+        "lost": np.zeros(n, bool),
+        "holding": np.zeros(n, bool),
+        "seen": np.zeros(n, bool),
     }
     T_c_o_true = [T_c_o0]  # per tick, to score an estimate against the truth at its own time
-    v_cmd, watchdog, arm_limited = np.zeros(6), False, False
+    v_cmd, watchdog, arm_limited, mode = np.zeros(6), False, False, hold.mode
     last_seq, ended, lost_at, n_events, done = 0, "duration", None, 0, 0
     with StopOnInterrupt() as stop:
         for k in range(n):
@@ -400,14 +488,17 @@ def run_episode(
                 T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
                 v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
                 est = tracker.latest(t_us)
+                # The start estimate (seq 0) reads lost before any update: a loss only without a start pose.
+                lost = est.lost and (est.seq > 0 or cfg.start_lost)
                 if k % ctrl_every == 0:
                     # A pose counts once, and not at all when the tracker flags itself lost.
                     fresh = est.seq != last_seq and not est.lost
                     last_seq = est.seq
-                    cmd = pbvs.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6)
-                    v_cmd, watchdog, arm_limited = cmd.v_c_w, cmd.watchdog, cmd.arm_limited
+                    cmd = hold.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6, lost)
+                    v_cmd, watchdog, mode = cmd.v_c_w, cmd.watchdog, cmd.mode
+                    arm_limited = cmd.pbvs is not None and cmd.pbvs.arm_limited
                 if k % panda_every == 0:
-                    if watchdog and not np.any(v_cmd):
+                    if (watchdog or mode in ("holding", "searching")) and not np.any(v_cmd):
                         panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
                     else:
                         panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), cfg.panda_period_s)
@@ -416,8 +507,9 @@ def run_episode(
                 break
             T_est = est.T_c_o
             j = min(round(est.t_us / TICK_US), k)
-            if geometry.translation_error_m(T_est, T_c_o_true[j]) > cfg.lost_pos_m or (
-                geometry.rotation_error_rad(T_est, T_c_o_true[j]) > lost_rot
+            if cfg.end_on_loss and (
+                geometry.translation_error_m(T_est, T_c_o_true[j]) > cfg.lost_pos_m
+                or geometry.rotation_error_rad(T_est, T_c_o_true[j]) > lost_rot
             ):
                 ended, lost_at = "tracking lost", t
                 break
@@ -425,24 +517,27 @@ def run_episode(
             rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
             rec["watchdog"][k], rec["arm_limited"][k] = watchdog, arm_limited
             rec["joint_speed_ratio"][k] = np.max(np.abs(scene.panda.qd) / scene.panda.limits.qd_max)
+            rec["lost"][k], rec["holding"][k] = lost, mode != "servoing"
+            rec["seen"][k] = disturb.seen(t) and in_view(T_c_o_true[k])
             done = k + 1
 
             scene.step(1)
             t_next = t_us + TICK_US
             T_now = scene.T_c_o()
             T_c_o_true.append(T_now)
+            T_shown = disturb.source_pose(source, t_next, T_now)
             if arms is None:
-                events = source.events_until(t_next, T_now, scene.T_w_c())
+                events = source.events_until(t_next, T_shown, scene.T_w_c())
             else:
                 T_w_c = scene.T_w_c()
-                events = source.events_until(t_next, T_now, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
-            if drop is not None and len(events):
-                events = events[(events["t"] < drop[0]) | (events["t"] >= drop[1])]
+                events = source.events_until(t_next, T_shown, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
+            events = disturb.events(t_us, t_next, events)
             n_events += len(events)
             if viewer is not None:
                 # The tick's poses (before the step), with the events simulated over it.
                 T_w_c_k, T_w_o_k = rec["T_w_c"][k], rec["T_w_o"][k]
-                viewer.servo(t_us, events, est, core, T_w_c=T_w_c_k, T_c_o_des=T_c_o_des, T_w_o_true=T_w_o_k)
+                des = hold.T_c_o_des if hold.T_c_o_des is not None else T_c_o0
+                viewer.servo(t_us, events, est, core, T_w_c=T_w_c_k, T_c_o_des=des, T_w_o_true=T_w_o_k)
             tracker.deliver(t_next + latency_us, events)
             tracker.advance(t_next)
             if progress is not None and (k + 1) % 100 == 0:
@@ -452,13 +547,15 @@ def run_episode(
 
     result = EpisodeResult(
         config=cfg,
-        T_c_o_des=T_c_o_des,
+        # Started without a pose and never locked: no desired pose; the start pose stands in for scoring.
+        T_c_o_des=hold.T_c_o_des if hold.T_c_o_des is not None else T_c_o0,
         t_s=np.arange(done) * TICK_US * 1e-6,
         **{key: v[:done] for key, v in rec.items()},
         ended=ended,
         lost_at_s=lost_at,
         steps=dict(tracker.steps),
         busy_s=tracker.busy_us * 1e-6,
+        ingest_busy_s=tracker.ingest_busy_us * 1e-6,
         wall_s=time.perf_counter() - wall0,
         events=n_events,
     )
@@ -515,6 +612,19 @@ def overshoot_m(d_lead: np.ndarray, d_follow: np.ndarray) -> float:
     return float(max(0.0, b.max() - a.max(), a.min() - b.min()))
 
 
+def loss_summary(result: EpisodeResult, pos_err_m: np.ndarray, rot_err_rad: np.ndarray, z_m: np.ndarray) -> dict:
+    """How the tracker's ``lost`` flag did (:func:`evservo.runtime.loss.loss_metrics`) given each
+    tick's tracking error (m, rad) and true depth (m): a pose is wrong beyond the issue's bounds, while
+    the object is not seen, or always when the tracker's model is not the object's. Adds the time the
+    loop spent not servoing (holding, searching or ramping back in)."""
+    r, cfg = result, result.config
+    mismatch = cfg.model is not None and cfg.model != cfg.object
+    wrong = wrong_pose(pos_err_m, rot_err_rad, z_m) | ~r.seen | mismatch
+    out = loss_metrics(r.t_s, r.lost, wrong, r.seen, started_lost=cfg.start_lost)
+    out["holding_s"] = float(np.sum(r.holding)) * TICK_US * 1e-6
+    return out
+
+
 def summarize(result: EpisodeResult) -> dict:
     """Metrics of an episode (JSON-ready): the paper's servoing error (estimated vs desired relative
     pose), the same with the true relative pose, the tracking error (estimate vs truth at the
@@ -552,12 +662,14 @@ def summarize(result: EpisodeResult) -> dict:
         "tracker_rate_hz": n_steps / sim_s if sim_s else 0.0,
         "tracker_steps": r.steps,
         "tracker_busy_fraction": r.busy_s / sim_s if sim_s else 0.0,
+        "ingest_busy_fraction": r.ingest_busy_s / sim_s if sim_s else 0.0,
         "pose_age_mean_ms": float(np.mean(r.t_s - r.est_t_s) * 1e3) if n else float("nan"),
         "events": r.events,
         "watchdog": [asdict(w) for w in r.watchdog_events],
         "arm_limited_fraction": float(np.mean(r.arm_limited)) if n else 0.0,
         "joint_speed_max_ratio": float(np.max(r.joint_speed_ratio)) if n else 0.0,
         "gave_out": gave_out(r),
+        "loss": loss_summary(r, k_pos, k_rot, truth[idx, 2, 3]),
         "timing": timing(r),
         "wall_s": r.wall_s,
         "config": asdict(cfg),

@@ -107,6 +107,11 @@ class RenderedSource:
             self.occ = arms.camera_poses()
         self.sim.advance(T_c_o0, self.t_us, T_c_bg=self.T_c_bg0, occluders=self.occ)
 
+    def jump(self, T_c_o: np.ndarray) -> None:
+        """Show the object at ``T_c_o`` from the next batch on without sweeping it there (it vanishes
+        behind an occluder or reappears from behind one; see :mod:`evservo.sim.disturb`)."""
+        self.T_c_o = T_c_o
+
     def _background(self, T_w_c: np.ndarray | None) -> np.ndarray:
         if T_w_c is None:
             return self.T_c_bg

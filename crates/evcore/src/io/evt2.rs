@@ -2,9 +2,9 @@
 //! CD_OFF 0x0 / CD_ON 0x1 carry ts[27:22] (low 6 µs bits), x[21:11], y[10:0];
 //! TIME_HIGH 0x8 carries bits 33..6 of the time. Everything else is counted and ignored.
 
-use super::{reserve, unwrap_time_base, DecodeStats, Stream, WordDecoder, MAX_SENSOR_SIDE_PX};
+use super::target::{DecodeTarget, Slots};
+use super::{unwrap_time_base, DecodeStats, Stream, WordDecoder, MAX_SENSOR_SIDE_PX};
 use crate::error::{Error, Result};
-use crate::EventBatch;
 
 const CD_OFF: u32 = 0x0;
 const CD_ON: u32 = 0x1;
@@ -48,8 +48,7 @@ impl WordDecoder for Evt2Words {
         &self.stats
     }
 
-    fn decode_words(&mut self, bytes: &[u8], out: &mut EventBatch) -> Result<()> {
-        reserve(out, bytes.len() / 4);
+    fn decode_words<O: DecodeTarget>(&mut self, bytes: &[u8], out: &mut O) -> Result<()> {
         let mut words = bytes
             .chunks_exact(4)
             .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]));
@@ -71,30 +70,38 @@ impl WordDecoder for Evt2Words {
                 }
             }
         };
-        self.time_high_us = Some(base);
+        // At most one event per word.
+        let slots = out.reserve_slots(words.len());
         let (width, height) = (self.width, self.height);
+        // Word counts by type kept in registers: CD_OFF/CD_ON from the event count, the rest
+        // (TIME_HIGH once per 64 µs, triggers, padding) in the rare branch.
+        let (mut n, mut n_on) = (0usize, 0u64);
+        let mut rare = [0u64; 16];
+        let mut bad = None;
         for w in words {
             let ty = w >> 28;
-            self.stats.words_by_type[ty as usize] += 1;
-            match ty {
-                CD_OFF | CD_ON => {
-                    let x = (w >> 11) & 0x7ff;
-                    let y = w & 0x7ff;
-                    if x >= width || y >= height {
-                        self.time_high_us = Some(base);
-                        return Err(Error::Decode(format!(
-                            "EVT2 event at ({x}, {y}) lies outside the {width}x{height} sensor (word {})",
-                            self.stats.words() - 1
-                        )));
-                    }
-                    out.push(
+            if ty <= CD_ON {
+                let (x, y) = ((w >> 11) & 0x7ff, w & 0x7ff);
+                if x >= width || y >= height {
+                    rare[ty as usize] += 1;
+                    bad = Some((x, y));
+                    break;
+                }
+                // SAFETY: n < words decoded so far <= the room reserved.
+                unsafe {
+                    slots.put(
+                        n,
                         x as u16,
                         y as u16,
                         ty as i16,
                         base + i64::from((w >> 22) & 0x3f),
-                    );
-                }
-                TIME_HIGH => {
+                    )
+                };
+                n += 1;
+                n_on += u64::from(ty);
+            } else {
+                rare[ty as usize] += 1;
+                if ty == TIME_HIGH {
                     let raw = i64::from(w & 0x0fff_ffff) << 6;
                     base = unwrap_time_base(
                         base,
@@ -104,10 +111,22 @@ impl WordDecoder for Evt2Words {
                         WRAP_GUARD_US,
                     );
                 }
-                _ => {}
             }
         }
+        // SAFETY: the first n slots were written above.
+        unsafe { out.commit(n) };
+        rare[CD_OFF as usize] += n as u64 - n_on;
+        rare[CD_ON as usize] += n_on;
+        for (total, k) in self.stats.words_by_type.iter_mut().zip(rare) {
+            *total += k;
+        }
         self.time_high_us = Some(base);
-        Ok(())
+        match bad {
+            None => Ok(()),
+            Some((x, y)) => Err(Error::Decode(format!(
+                "EVT2 event at ({x}, {y}) lies outside the {width}x{height} sensor (word {})",
+                self.stats.words() - 1
+            ))),
+        }
     }
 }

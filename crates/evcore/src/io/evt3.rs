@@ -15,9 +15,9 @@
 //! followed by a smaller TIME_LOW is a step back in time, not a wrap, and is output as such.
 //! EXT_TRIGGER 0xA, CONTINUED 0x7/0xF, OTHERS 0xE and the reserved types are counted and ignored.
 
+use super::target::{DecodeTarget, Slots};
 use super::{unwrap_time_base, DecodeStats, Stream, WordDecoder, MAX_SENSOR_SIDE_PX};
 use crate::error::{Error, Result};
-use crate::EventBatch;
 
 const ADDR_Y: u16 = 0x0;
 const ADDR_X: u16 = 0x2;
@@ -79,7 +79,7 @@ impl WordDecoder for Evt3Words {
         &self.stats
     }
 
-    fn decode_words(&mut self, bytes: &[u8], out: &mut EventBatch) -> Result<()> {
+    fn decode_words<O: DecodeTarget>(&mut self, bytes: &[u8], out: &mut O) -> Result<()> {
         let mut body = bytes;
         let mut s = match self.state {
             Some(s) => s,
@@ -116,7 +116,7 @@ impl WordDecoder for Evt3Words {
 }
 
 impl Evt3Words {
-    /// Decodes a block of whole words straight into the spare capacity of `out`'s columns.
+    /// Decodes a block of whole words straight into the slots past the end of `out`.
     ///
     /// The hot loop is shaped for the real streams, where ADDR_X and ADDR_Y (≈ 80 % of the
     /// words) interleave unpredictably: those two take one branch-free path that always writes an
@@ -124,30 +124,15 @@ impl Evt3Words {
     /// next event overwrites); the rarer types share a second path. Vector words expand through
     /// a nibble table: four output slots per 4 mask bits, with the count advanced by the nibble's
     /// population. Every write stays below `n + 12`, and `n` never exceeds 12 per word, which
-    /// is what the capacity reserved up front covers.
-    fn decode_block(
+    /// is what the room reserved up front covers.
+    fn decode_block<O: DecodeTarget>(
         &mut self,
         state: &mut State,
         block: &[u8],
-        out: &mut EventBatch,
+        out: &mut O,
     ) -> Result<()> {
         let mut s = *state;
-        let n_words = block.len() / 2;
-        // At most 12 events per word, plus the 12 slots a vector or a lone slot may write past the end.
-        let room = 12 * n_words + 12;
-        out.x.reserve(room);
-        out.y.reserve(room);
-        out.p.reserve(room);
-        out.t_us.reserve(room);
-        let base_len = out.x.len();
-        debug_assert!([out.y.len(), out.p.len(), out.t_us.len()] == [base_len; 3]);
-        // SAFETY (for every raw write below): each column has capacity >= base_len + room, the
-        // loop only writes slots base_len + n + k with k < 12 and n <= 12 * (words so far), and
-        // set_len at the end covers only the n slots that were written.
-        let xs = out.x[base_len..].as_mut_ptr();
-        let ys = out.y[base_len..].as_mut_ptr();
-        let ps = out.p[base_len..].as_mut_ptr();
-        let ts = out.t_us[base_len..].as_mut_ptr();
+        let slots = out.reserve_slots(12 * (block.len() / 2) + 12);
         let (width, height) = (self.width, self.height);
         let [mut n_y, mut n_x] = [0u64; 2];
         let mut rare = [0u64; 16];
@@ -168,12 +153,8 @@ impl Evt3Words {
                     res = Err((v, y));
                     break;
                 }
-                unsafe {
-                    *xs.add(n) = v as u16;
-                    *ys.add(n) = y as u16;
-                    *ps.add(n) = ((w >> 11) & 1) as i16;
-                    *ts.add(n) = t;
-                }
+                // SAFETY (every put): slot < n + 12 <= 12 * (words so far) + 12 <= room.
+                unsafe { slots.put(n, v as u16, y as u16, ((w >> 11) & 1) as i16, t) };
                 n += is_x;
                 y = if is_x != 0 { y } else { v };
                 continue;
@@ -195,27 +176,28 @@ impl Evt3Words {
                         }
                         // x_last < width <= 2048, so every slot value below fits in u16.
                         let base = s.x_base as u16;
-                        unsafe {
-                            for k in 0..12 {
-                                *ys.add(n + k) = y as u16;
-                                *ps.add(n + k) = s.vect_p;
-                                *ts.add(n + k) = t;
+                        let mut m = n;
+                        for j in 0..3 {
+                            let nibble = ((mask >> (4 * j)) & 0xf) as usize;
+                            let offsets = NIBBLE_BITS[nibble];
+                            let origin = base.wrapping_add(4 * j as u16);
+                            for (k, off) in offsets.iter().enumerate() {
+                                unsafe {
+                                    slots.put(
+                                        m + k,
+                                        origin.wrapping_add(*off),
+                                        y as u16,
+                                        s.vect_p,
+                                        t,
+                                    )
+                                };
                             }
-                            let mut m = n;
-                            for j in 0..3 {
-                                let nibble = ((mask >> (4 * j)) & 0xf) as usize;
-                                let offsets = NIBBLE_BITS[nibble];
-                                let origin = base.wrapping_add(4 * j as u16);
-                                for k in 0..4 {
-                                    *xs.add(m + k) = origin.wrapping_add(offsets[k]);
-                                }
-                                m += nibble.count_ones() as usize;
-                            }
-                            n = m;
+                            m += nibble.count_ones() as usize;
                         }
+                        n = m;
                     }
-                    // Saturating: a long run of vectors in garbage input must not wrap back
-                    // into the sensor.
+                    // Saturating: a long run of vectors in garbage input must not wrap
+                    // back into the sensor.
                     s.x_base = s.x_base.saturating_add(step);
                 }
                 VECT_BASE_X => {
@@ -235,13 +217,8 @@ impl Evt3Words {
                 _ => {}
             }
         }
-        // SAFETY: the first n slots of every column past base_len were written above.
-        unsafe {
-            out.x.set_len(base_len + n);
-            out.y.set_len(base_len + n);
-            out.p.set_len(base_len + n);
-            out.t_us.set_len(base_len + n);
-        }
+        // SAFETY: the first n slots were written above.
+        unsafe { out.commit(n) };
         s.y = y;
         rare[usize::from(ADDR_Y)] += n_y;
         rare[usize::from(ADDR_X)] += n_x;

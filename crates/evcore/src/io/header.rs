@@ -28,6 +28,16 @@ impl Format {
             Self::Evt3 => "EVT3",
         }
     }
+
+    /// Capacity to reserve for the events of `bytes` of data: exact as a bound for EVT 2.0 (one
+    /// event per word at most); for EVT 3.0 one per word, above the ≈ 0.7 of real streams (a
+    /// denser stream grows the output as it decodes).
+    pub fn events_hint(self, bytes: usize) -> usize {
+        match self {
+            Self::Evt2 => bytes / 4,
+            Self::Evt3 => bytes / 2,
+        }
+    }
 }
 
 impl fmt::Display for Format {

@@ -21,12 +21,14 @@ mod evt3;
 mod evt3_encode;
 mod header;
 mod raw;
+mod target;
 
 pub use evt2::{Evt2Decoder, Evt2Words};
 pub use evt3::{Evt3Decoder, Evt3Words};
 pub use evt3_encode::{encode_evt3, Evt3Encoder, MAX_WRAPS_PER_GAP};
 pub use header::{Format, RawHeader};
 pub use raw::RawReader;
+pub use target::{ColumnSlots, DecodeTarget, RecordSlots, Slots};
 
 use crate::error::{Error, Result};
 
@@ -57,8 +59,8 @@ pub trait WordDecoder: Default {
     /// Reject events outside `width`×`height` pixels (already checked against the format's range).
     fn set_geometry(&mut self, width: u32, height: u32);
     fn stats(&self) -> &DecodeStats;
-    /// Decode whole words (the length is a multiple of the word size).
-    fn decode_words(&mut self, bytes: &[u8], out: &mut crate::EventBatch) -> Result<()>;
+    /// Decode whole words (the length is a multiple of the word size), appending to `out`.
+    fn decode_words<O: DecodeTarget>(&mut self, bytes: &[u8], out: &mut O) -> Result<()>;
 }
 
 /// A streaming decoder: a format's [`WordDecoder`] plus what every format shares, the partial
@@ -103,8 +105,8 @@ impl<D: WordDecoder, const N: usize> Stream<D, N> {
         self.carry.len
     }
 
-    /// Decodes the next chunk of the stream, appending its events to `out`.
-    pub fn decode(&mut self, bytes: &[u8], out: &mut crate::EventBatch) -> Result<()> {
+    /// Decodes the next chunk of the stream, appending its events to `out` (columns or records).
+    pub fn decode<O: DecodeTarget>(&mut self, bytes: &[u8], out: &mut O) -> Result<()> {
         if let Some(e) = &self.failed {
             return Err(e.clone());
         }
@@ -139,7 +141,7 @@ impl Decoder {
         })
     }
 
-    pub fn decode(&mut self, bytes: &[u8], out: &mut crate::EventBatch) -> Result<()> {
+    pub fn decode<O: DecodeTarget>(&mut self, bytes: &[u8], out: &mut O) -> Result<()> {
         match self {
             Self::Evt2(d) => d.decode(bytes, out),
             Self::Evt3(d) => d.decode(bytes, out),
@@ -169,14 +171,6 @@ fn check_geometry(width: u32, height: u32) -> Result<(u32, u32)> {
         )));
     }
     Ok((width, height))
-}
-
-/// Grows every column of `out` for `additional` more events, so the hot loops rarely reallocate.
-fn reserve(out: &mut crate::EventBatch, additional: usize) {
-    out.x.reserve(additional);
-    out.y.reserve(additional);
-    out.p.reserve(additional);
-    out.t_us.reserve(additional);
 }
 
 /// The tail of a stream chunk that did not fill a whole `N`-byte word.

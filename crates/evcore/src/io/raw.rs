@@ -3,7 +3,7 @@
 use super::{DecodeStats, Decoder, Format, RawHeader};
 use crate::error::{Error, Result};
 use crate::event::EventSink;
-use crate::EventBatch;
+use crate::EventCd;
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
@@ -25,7 +25,7 @@ pub struct RawReader<R: Read = File> {
     header: RawHeader,
     decoder: Decoder,
     /// Decoded events not yet handed out start at `pos`.
-    buf: EventBatch,
+    buf: Vec<EventCd>,
     pos: usize,
     eof: bool,
     failed: Option<Error>,
@@ -51,7 +51,7 @@ impl<R: Read> RawReader<R> {
             input,
             header,
             decoder,
-            buf: EventBatch::default(),
+            buf: Vec::new(),
             pos: 0,
             eof: false,
             failed: None,
@@ -99,7 +99,7 @@ impl<R: Read> RawReader<R> {
         let mut scanned = 0;
         let end = loop {
             let from = self.pos + scanned;
-            if let Some(k) = self.buf.t_us[from..].iter().position(|&t| t >= t_us) {
+            if let Some(k) = self.buf[from..].iter().position(|e| e.t >= t_us) {
                 break from + k;
             }
             scanned = self.buf.len() - self.pos;
@@ -112,16 +112,40 @@ impl<R: Read> RawReader<R> {
 
     /// Appends every remaining event to `out`; returns how many.
     pub fn read_all(&mut self, out: &mut impl EventSink) -> Result<usize> {
+        let rest = self.read_rest()?;
+        out.extend_from_records(&rest);
+        Ok(rest.len())
+    }
+
+    /// Every remaining event as one vector of records: the rest of the input is read in one go
+    /// and decoded straight into the vector that is returned (no intermediate buffers). On an
+    /// error nothing is returned and the reader stays failed.
+    pub fn read_rest(&mut self) -> Result<Vec<EventCd>> {
         self.check()?;
-        let mut n = 0;
-        loop {
-            n += self.buf.len() - self.pos;
-            let end = self.buf.len();
-            self.hand_out(end, out);
-            if !self.fill()? {
-                return Ok(n);
-            }
+        let res = self.decode_rest();
+        if let Err(e) = &res {
+            self.failed = Some(e.clone());
         }
+        res
+    }
+
+    fn decode_rest(&mut self) -> Result<Vec<EventCd>> {
+        let mut bytes = Vec::new();
+        if !self.eof {
+            self.input
+                .read_to_end(&mut bytes)
+                .map_err(|e| Error::Decode(format!("reading RAW data: {e}")))?;
+            self.eof = true;
+        }
+        let buffered = self.buf.len() - self.pos;
+        let mut out = Vec::with_capacity(buffered + self.header.format.events_hint(bytes.len()));
+        out.extend_from_slice(&self.buf[self.pos..]);
+        self.buf.clear();
+        self.pos = 0;
+        self.decoder.decode(&bytes, &mut out)?;
+        self.check_no_stray_bytes()?;
+        offset_times(&mut out[buffered..], self.header.t0_us);
+        Ok(out)
     }
 
     /// Time of the next event without consuming it; None once the stream is exhausted.
@@ -132,7 +156,7 @@ impl<R: Read> RawReader<R> {
                 return Ok(None);
             }
         }
-        Ok(Some(self.buf.t_us[self.pos]))
+        Ok(Some(self.buf[self.pos].t))
     }
 
     fn check(&self) -> Result<()> {
@@ -145,7 +169,7 @@ impl<R: Read> RawReader<R> {
     /// Moves buffered events `pos..end` to `out`; false when nothing moved and nothing is left.
     fn hand_out(&mut self, end: usize, out: &mut impl EventSink) -> bool {
         let (a, b) = (self.pos, end);
-        out.extend_from_batch(&self.buf, a..b);
+        out.extend_from_records(&self.buf[a..b]);
         self.pos = end;
         end > a || !(self.eof && self.pos == self.buf.len())
     }
@@ -156,11 +180,7 @@ impl<R: Read> RawReader<R> {
             return Ok(false);
         }
         if self.pos > 0 {
-            let p = self.pos;
-            self.buf.x.drain(..p);
-            self.buf.y.drain(..p);
-            self.buf.p.drain(..p);
-            self.buf.t_us.drain(..p);
+            self.buf.drain(..self.pos);
             self.pos = 0;
         }
         let res = self.fill_block();
@@ -177,27 +197,36 @@ impl<R: Read> RawReader<R> {
             .map_err(|e| Error::Decode(format!("reading RAW data: {e}")))?;
         if chunk.is_empty() {
             self.eof = true;
-            let stray = self.decoder.pending_bytes();
-            if stray > 0 {
-                return Err(Error::Decode(format!(
-                    "{} stream ends inside a word ({stray} stray bytes): the file is truncated",
-                    self.header.format
-                )));
-            }
+            self.check_no_stray_bytes()?;
             return Ok(false);
         }
         let n = chunk.len();
         let first_new = self.buf.len();
         let res = self.decoder.decode(chunk, &mut self.buf);
         // Events decoded before an error are kept, so they get the offset too.
-        let t0 = self.header.t0_us;
-        if t0 != 0 {
-            for t in &mut self.buf.t_us[first_new..] {
-                *t = t.saturating_add(t0);
-            }
-        }
+        offset_times(&mut self.buf[first_new..], self.header.t0_us);
         res?;
         self.input.consume(n);
         Ok(true)
+    }
+
+    /// The error for a stream that ended inside a word.
+    fn check_no_stray_bytes(&self) -> Result<()> {
+        match self.decoder.pending_bytes() {
+            0 => Ok(()),
+            stray => Err(Error::Decode(format!(
+                "{} stream ends inside a word ({stray} stray bytes): the file is truncated",
+                self.header.format
+            ))),
+        }
+    }
+}
+
+/// Adds the header's `% t0` (µs) to decoded times.
+fn offset_times(events: &mut [EventCd], t0_us: i64) {
+    if t0_us != 0 {
+        for e in events {
+            e.t = e.t.saturating_add(t0_us);
+        }
     }
 }

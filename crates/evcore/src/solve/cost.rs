@@ -19,6 +19,17 @@ pub trait CostMap {
     fn sample_grad(&self, u: f32, v: f32) -> [f32; 3];
     /// The truncation value: what a point far from every event (or off the map) costs.
     fn max_value(&self) -> f32;
+    /// Adds to `sums` the 13 values of a search star: `sums[0]` at (u, v), `sums[2k+1]` at
+    /// (u + du[k], v + dv[k]) and `sums[2k+2]` at (u − du[k], v − dv[k]). A map may override this
+    /// with a faster path for stars that lie wholly inside it.
+    #[inline]
+    fn add_star(&self, u: f32, v: f32, du: &[f32; 6], dv: &[f32; 6], sums: &mut [f32; 13]) {
+        sums[0] += self.sample(u, v);
+        for k in 0..6 {
+            sums[2 * k + 1] += self.sample(u + du[k], v + dv[k]);
+            sums[2 * k + 2] += self.sample(u - du[k], v - dv[k]);
+        }
+    }
 }
 
 /// Points closer to the camera plane than this are treated as unprojectable (metres).
@@ -245,6 +256,10 @@ impl CostMap for crate::field::FieldLevel {
     }
     fn max_value(&self) -> f32 {
         crate::field::FieldLevel::max_value(self)
+    }
+    #[inline]
+    fn add_star(&self, u: f32, v: f32, du: &[f32; 6], dv: &[f32; 6], sums: &mut [f32; 13]) {
+        crate::field::FieldLevel::add_star(self, u, v, du, dv, sums)
     }
 }
 

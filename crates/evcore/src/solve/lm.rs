@@ -281,6 +281,15 @@ pub fn lm_level(
     (pose, iterations, Some(obs))
 }
 
+/// The lower-cost of two (cost, pose) pairs; the first on a tie.
+fn min_cost(a: (f32, Pose), b: (f32, Pose)) -> (f32, Pose) {
+    if b.0 < a.0 {
+        b
+    } else {
+        a
+    }
+}
+
 /// Coarse levels keep at least this many points when they are thinned.
 const MIN_COARSE_POINTS: usize = 128;
 
@@ -311,18 +320,38 @@ pub fn lm_pyramid<M: CostMap>(
         iterations += it;
         last_obs = obs;
     }
+    // Coarse levels can lock onto the wrong edge: with part of the outline out of view or hidden,
+    // their wide basins reach edges the missing part would have ruled out (benches/RESULTS.md,
+    // issue 13). The step is therefore kept only if it lowers Eq. (1) at full resolution, the cost
+    // the search steps minimise, and lowers it more than refining at full resolution alone does;
+    // so LM never undoes what the search gained.
+    if let Some((map, pin)) = levels.last() {
+        let eq1 = |p: &Pose| {
+            let c = super::cost::total_cost(*map, pin, &Rigid32::from_pose(p), points);
+            if c.is_nan() {
+                f32::INFINITY
+            } else {
+                c
+            }
+        };
+        let mut best = (eq1(&pose), pose);
+        if pose_out != pose {
+            best = min_cost(best, (eq1(&pose_out), pose_out));
+        }
+        if levels.len() > 1 {
+            let (fine, it, obs) = lm_level(*map, pin, pose, points, pivot_o, radius_m, params);
+            iterations += it;
+            let candidate = (eq1(&fine), fine);
+            if candidate.0 < best.0 {
+                best = candidate;
+                last_obs = obs;
+            }
+        }
+        pose_out = best.1;
+    }
     let cost = levels.last().map_or(0.0, |(map, pin)| {
         (robust_cost(*map, pin, &pose_out, points, params) / points.len().max(1) as f64) as f32
     });
-    // Coarse levels can lock onto the wrong edge; the step is kept only if it lowers Eq. (1) at full
-    // resolution, the cost the search steps minimise, so LM never undoes what the search gained.
-    if let Some((map, pin)) = levels.last() {
-        let before = super::cost::total_cost(*map, pin, &Rigid32::from_pose(&pose), points);
-        let after = super::cost::total_cost(*map, pin, &Rigid32::from_pose(&pose_out), points);
-        if after > before || after.is_nan() {
-            pose_out = pose;
-        }
-    }
     let mut held = [Vector6::zeros(); 6];
     let n_held = last_obs.map_or(0, |o| {
         for (k, h) in held.iter_mut().enumerate().take(o.n_weak) {

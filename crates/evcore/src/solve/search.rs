@@ -82,12 +82,9 @@ pub fn search_step<M: CostMap>(
             continue;
         };
         let j = image_jacobian(pin, p, pivot);
-        sums[0] += map.sample(u, v);
-        for k in 0..6 {
-            let (du, dv) = (d[k] * j[0][k], d[k] * j[1][k]);
-            sums[2 * k + 1] += map.sample(u + du, v + dv);
-            sums[2 * k + 2] += map.sample(u - du, v - dv);
-        }
+        let du: [f32; 6] = std::array::from_fn(|k| d[k] * j[0][k]);
+        let dv: [f32; 6] = std::array::from_fn(|k| d[k] * j[1][k]);
+        map.add_star(u, v, &du, &dv, &mut sums);
     }
     let n = points.len().max(1) as f32;
     let costs: [f32; N_CANDIDATES] = std::array::from_fn(|i| sums[i] / n);

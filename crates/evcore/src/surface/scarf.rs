@@ -8,20 +8,23 @@
 //! however old they are, which is what makes the active set independent of the object's speed.
 //!
 //! Storage differs from the C++ in three ways, none visible in the result:
-//! - activity is a per-pixel u16 count of centre entries (active = count > 0) instead of a float
-//!   image updated by ±C, so no residue can build up;
-//! - a ring entry is the pixel index of a centre event, or the spare index `width·height` for a
-//!   surround event; that spare cell of the count image absorbs the unconditional ±1 updates, so
-//!   the hot loop has no "is this a centre entry" branch;
-//! - a missing neighbour block points at a dummy block whose ring only ever holds the spare index,
+//! - activity is a per-pixel u8 count of centre entries (active = count > 0) instead of a float
+//!   image updated by ±C, so no residue can build up; a pixel's count is at most N, so N ≤ 255;
+//! - a ring entry is a u16: the block-local index (row · block width + column) of a centre event,
+//!   or the spare value `block area` for a surround event. The spare value maps to a spare cell of
+//!   the count image that absorbs the unconditional ±1 updates, so the hot loop has no "is this a
+//!   centre entry" branch. Block-local u16 entries and u8 counts halve the rings and the count
+//!   image against pixel indices and u16 counts (≈ 1.8 MB instead of 3.6 MB at 1280×720), which is
+//!   what a stream spread over the whole sensor (a textured background) misses the cache on;
+//! - a missing neighbour block points at a dummy block whose ring only ever holds the spare value,
 //!   so every event does exactly four ring updates and the loop has no "is there a block" branch.
 //!
 //! Concurrency: one [`ScarfWriter`] owns the rings and the connection table; any number of
-//! [`ScarfReader`] handles share only the count image (relaxed `AtomicU16`) and the active-pixel
-//! total. Relaxed loads and stores of 16-bit cells compile to plain moves on x86-64 and AArch64, so
+//! [`ScarfReader`] handles share only the count image (relaxed `AtomicU8`) and the active-pixel
+//! total. Relaxed loads and stores of byte cells compile to plain moves on x86-64 and AArch64, so
 //! the writer pays nothing for being observable.
 
-use std::sync::atomic::{AtomicU16, AtomicUsize, Ordering::Relaxed};
+use std::sync::atomic::{AtomicU8, AtomicUsize, Ordering::Relaxed};
 use std::sync::Arc;
 
 use super::{check_grid, fill_roi, EventSurface};
@@ -44,7 +47,8 @@ pub struct ScarfGeometry {
 impl ScarfGeometry {
     /// Odd `block_px` is raised by one; the grid drops one block's worth of border; block dims are
     /// rounded down to even; N = ⌊block_w·block_h·alpha/2⌋. `alpha` must lie in (0, 8] (8 makes
-    /// the FIFO as long as the whole 2×2-block window) and N must fit the u16 count image.
+    /// the FIFO as long as the whole 2×2-block window); N must fit the u8 count image (≤ 255) and
+    /// the block area the u16 ring entries (< 65535).
     pub fn new(width: u32, height: u32, block_px: u32, alpha: f32) -> Result<Self> {
         check_grid(width, height)?;
         ensure(alpha.is_finite() && alpha > 0.0 && alpha <= 8.0, || {
@@ -64,8 +68,11 @@ impl ScarfGeometry {
         let block_w = width / (grid_w + 1) / 2 * 2;
         let block_h = height / (grid_h + 1) / 2 * 2;
         let n = (f64::from(block_w) * f64::from(block_h) * f64::from(alpha) * 0.5).floor();
-        ensure((1.0..=f64::from(u16::MAX)).contains(&n), || {
-            format!("SCARF FIFO length {n} (block {block_w}x{block_h}, alpha {alpha}) must be in 1..=65535")
+        ensure((1.0..=f64::from(u8::MAX)).contains(&n), || {
+            format!("SCARF FIFO length {n} (block {block_w}x{block_h}, alpha {alpha}) must be in 1..=255")
+        })?;
+        ensure(block_w * block_h < u32::from(u16::MAX), || {
+            format!("SCARF block {block_w}x{block_h} px is too large (area must be below 65535)")
         })?;
         Ok(Self {
             grid_w,
@@ -140,24 +147,41 @@ impl RowOf {
 }
 
 /// Per row or column: the padded-grid offsets of the own and the side block along that axis
-/// (rows pre-multiplied by the padded grid width), and whether the own block is a real one.
+/// (rows pre-multiplied by the padded grid width), the coordinate's offset inside its own block
+/// (rows pre-multiplied by the block width), and whether the own block is a real one.
 #[derive(Debug, Clone, Copy)]
 struct AxisEntry {
     own: u32,
     side: u32,
+    local: u32,
     real: bool,
 }
 
 /// Axis table for coordinates 0..len; `pad` is the lowest block index any coordinate reaches (−1),
-/// `scale` the stride of one step along this axis in the padded grid.
-fn axis_table(len: u32, block: u32, grid: u32, pad: i64, scale: u32) -> Box<[AxisEntry]> {
+/// `scale` the stride of one step along this axis in the padded grid, `local_scale` that of one
+/// step inside a block's local index.
+fn axis_table(
+    len: u32,
+    block: u32,
+    grid: u32,
+    pad: i64,
+    scale: u32,
+    local_scale: u32,
+) -> Box<[AxisEntry]> {
     (0..len)
         .map(|c| {
             let (own, side) = axis(c, block);
+            let real = (0..i64::from(grid)).contains(&own);
+            let local = if real {
+                (i64::from(c) - i64::from(block / 2) - own * i64::from(block)) as u32 * local_scale
+            } else {
+                0
+            };
             AxisEntry {
                 own: (own - pad) as u32 * scale,
                 side: (side - pad) as u32 * scale,
-                real: (0..i64::from(grid)).contains(&own),
+                local,
+                real,
             }
         })
         .collect()
@@ -168,7 +192,7 @@ fn axis_table(len: u32, block: u32, grid: u32, pad: i64, scale: u32) -> Box<[Axi
 struct Shared {
     width: u32,
     height: u32,
-    counts: Box<[AtomicU16]>,
+    counts: Box<[AtomicU8]>,
     active: AtomicUsize,
 }
 
@@ -189,9 +213,14 @@ pub struct ScarfWriter {
     rows: Box<[AxisEntry]>,
     /// Per padded block, the slot written last (0..N); kept apart from the rings so this hot,
     /// small array stays cached while the rings miss.
-    heads: Box<[u16]>,
-    /// Per padded block, N entries: a centre event's pixel index or the spare index.
-    rings: Box<[u32]>,
+    heads: Box<[u8]>,
+    /// Per padded block, N entries: a centre event's block-local index or the spare value.
+    rings: Box<[u16]>,
+    /// Per padded block, the pixel index of its top-left pixel (0 for pad blocks, whose rings
+    /// only hold the spare value).
+    origins: Box<[u32]>,
+    /// Pixel offset from a block's top-left pixel of each block-local index.
+    local_offsets: Box<[u32]>,
     /// Writer-side copy of the active-pixel total, published after each batch.
     active: usize,
 }
@@ -229,15 +258,18 @@ impl Scarf {
         ensure(u32::try_from(ring_words).is_ok(), || {
             format!("SCARF rings of {ring_words} words exceed u32 offsets")
         })?;
-        let cols = axis_table(width, geometry.block_w, geometry.grid_w, -1, 1);
-        let rows = axis_table(
-            height,
-            geometry.block_h,
-            geometry.grid_h,
-            -1,
-            padded_w as u32,
-        );
-        let counts = (0..=n_pixels).map(|_| AtomicU16::new(0)).collect();
+        let (bw, bh) = (geometry.block_w, geometry.block_h);
+        let cols = axis_table(width, bw, geometry.grid_w, -1, 1, 1);
+        let rows = axis_table(height, bh, geometry.grid_h, -1, padded_w as u32, bw);
+        let mut origins = vec![0u32; n_padded];
+        for by in 0..geometry.grid_h {
+            for bx in 0..geometry.grid_w {
+                let b = (by + 1) as usize * padded_w as usize + (bx + 1) as usize;
+                origins[b] = (bh / 2 + by * bh) * width + bw / 2 + bx * bw;
+            }
+        }
+        let local_offsets = (0..bw * bh).map(|l| l / bw * width + l % bw).collect();
+        let counts = (0..=n_pixels).map(|_| AtomicU8::new(0)).collect();
         let shared = Arc::new(Shared {
             width,
             height,
@@ -252,6 +284,8 @@ impl Scarf {
             rows,
             heads: vec![0; n_padded].into_boxed_slice(),
             rings: vec![0; ring_words].into_boxed_slice(),
+            origins: origins.into_boxed_slice(),
+            local_offsets,
             active: 0,
         };
         writer.reset();
@@ -285,9 +319,11 @@ impl ScarfWriter {
     pub fn ingest(&mut self, pixels: &[u32]) {
         let row_of = self.row_of;
         let spare = self.shared.counts.len() as u32 - 1;
+        let spare_local = self.local_offsets.len() as u16;
         let n = self.geometry.fifo_len as usize;
         let counts = &*self.shared.counts;
         let (cols, rows) = (&*self.cols, &*self.rows);
+        let (origins, offsets) = (&*self.origins, &*self.local_offsets);
         let heads = &mut *self.heads;
         let rings = &mut *self.rings;
         let mut active = self.active;
@@ -303,7 +339,12 @@ impl ScarfWriter {
                     rows.get_unchecked(y as usize),
                 )
             };
-            let centre = if c.real && r.real { p } else { spare };
+            let real = c.real && r.real;
+            let (centre, centre_local) = if real {
+                (p, (r.local + c.local) as u16)
+            } else {
+                (spare, spare_local)
+            };
             let blocks = [
                 r.own + c.own,
                 r.side + c.own,
@@ -313,7 +354,7 @@ impl ScarfWriter {
             for (k, b) in blocks.into_iter().enumerate() {
                 let b = b as usize;
                 // SAFETY: the axis tables only hold offsets inside the padded grid, which has
-                // heads.len() blocks of n ring words each; heads stay in 0..n.
+                // heads.len() blocks of n ring entries each; heads stay in 0..n.
                 let head = unsafe { heads.get_unchecked_mut(b) };
                 let slot = if usize::from(*head) + 1 >= n {
                     0
@@ -322,18 +363,24 @@ impl ScarfWriter {
                 };
                 *head = slot;
                 let entry = unsafe { rings.get_unchecked_mut(b * n + usize::from(slot)) };
-                let old = std::mem::replace(entry, if k == 0 { centre } else { spare });
-                // SAFETY: ring entries are pixel indices < spare or spare itself, and counts has
-                // spare + 1 cells.
-                let cell = unsafe { counts.get_unchecked(old as usize) };
+                let old = std::mem::replace(entry, if k == 0 { centre_local } else { spare_local });
+                // SAFETY: a ring entry is a local index < block area (only ever written into a
+                // real block's ring, whose origin plus offset is a pixel of that block) or the
+                // spare value; counts has spare + 1 cells.
+                let cell = if old == spare_local {
+                    spare
+                } else {
+                    unsafe { origins.get_unchecked(b) + offsets.get_unchecked(usize::from(old)) }
+                };
+                let cell = unsafe { counts.get_unchecked(cell as usize) };
                 let v = cell.load(Relaxed).wrapping_sub(1);
                 cell.store(v, Relaxed);
-                active -= usize::from(v == 0 && old != spare);
+                active -= usize::from(v == 0 && old != spare_local);
             }
             let cell = unsafe { counts.get_unchecked(centre as usize) };
             let v = cell.load(Relaxed);
             cell.store(v.wrapping_add(1), Relaxed);
-            active += usize::from(v == 0 && centre != spare);
+            active += usize::from(v == 0 && real);
         }
         self.active = active;
         self.shared.active.store(active, Relaxed);
@@ -341,8 +388,7 @@ impl ScarfWriter {
 
     /// Empty every FIFO and the count image.
     pub fn reset(&mut self) {
-        let spare = self.shared.counts.len() as u32 - 1;
-        self.rings.fill(spare);
+        self.rings.fill(self.local_offsets.len() as u16);
         self.heads.fill(0);
         for c in self.shared.counts.iter() {
             c.store(0, Relaxed);
@@ -376,7 +422,9 @@ impl ScarfReader {
         if x >= self.shared.width || y >= self.shared.height {
             return 0;
         }
-        self.shared.counts[y as usize * self.shared.width as usize + x as usize].load(Relaxed)
+        u16::from(
+            self.shared.counts[y as usize * self.shared.width as usize + x as usize].load(Relaxed),
+        )
     }
 
     /// Number of active pixels as of the writer's last completed batch.
@@ -506,6 +554,9 @@ mod tests {
             ScarfGeometry::new(640, 480, 2, 0.1).is_err(),
             "N = 0 must be refused"
         );
+        // The u8 count image holds N ≤ 255: block 22 at alpha 1 gives 242, block 24 gives 288.
+        assert_eq!(ScarfGeometry::new(640, 480, 22, 1.0).unwrap().fifo_len, 242);
+        assert!(ScarfGeometry::new(640, 480, 24, 1.0).is_err(), "N = 288");
         assert_eq!(
             Scarf::new(346, 260, 14, 1.0).unwrap().geometry(),
             ScarfGeometry::new(346, 260, 14, 1.0).unwrap()
@@ -579,6 +630,40 @@ mod tests {
         assert!(
             reader.active_count() > 450,
             "the test must exercise a well-filled set"
+        );
+    }
+
+    /// The largest FIFO the u8 counts allow (block 22, N = 242), on a grid that is not a multiple
+    /// of the block, with a few pixels firing over and over so single counts reach N.
+    #[test]
+    fn agrees_with_the_reference_up_to_the_largest_fifo() {
+        let (w, h) = (203u32, 140u32);
+        let mut rng = Rng::new(8);
+        let pixels: Vec<u32> = (0..80_000)
+            .map(|i| match i % 3 {
+                0 => rng.below(u64::from(w * h)) as u32,
+                1 => 60 * w + 70 + rng.below(2) as u32,
+                _ => (20 + rng.below(90) as u32) * w + 150 + rng.below(40) as u32,
+            })
+            .collect();
+        let mut s = Scarf::new(w, h, 22, 1.0).unwrap();
+        assert_eq!(s.geometry().fifo_len, 242);
+        let mut r = Reference::new(w, h, 22, 1.0);
+        s.writer().ingest(&pixels[..40_000]);
+        pixels[..40_000].iter().for_each(|&p| r.update(p));
+        // A run of one pixel fills its block's FIFO: its count is N.
+        let hot = vec![60 * w + 70; 300];
+        s.writer().ingest(&hot);
+        hot.iter().for_each(|&p| r.update(p));
+        assert_eq!(s.reader().count(70, 60), 242);
+        s.writer().ingest(&pixels[40_000..]);
+        pixels[40_000..].iter().for_each(|&p| r.update(p));
+        let reader = s.reader();
+        let got: Vec<u16> = (0..w * h).map(|p| reader.count(p % w, p / w)).collect();
+        assert_eq!(got, r.counts);
+        assert_eq!(
+            reader.active_count(),
+            r.counts.iter().filter(|&&c| c > 0).count()
         );
     }
 
