@@ -113,8 +113,8 @@ class _OracleTracker:
         self.spells = spells_s
         self.cycle_len = self._core.cycle_len
 
-    def ingest(self, events):
-        self._core.ingest(events)
+    def ingest(self, events, thin=False):
+        self._core.ingest(events, thin=thin)
 
     def step(self, n=1):
         e = self._core.step(n)
