@@ -6,8 +6,8 @@ by dense uniform noise, or come from another object than the tracker's model. Ev
 tracker ingests that millisecond's events and runs one step (one LM or one search step), and each
 update is scored against the truth:
 
-- the pose is *wrong* when it is more than ``WRONG_POS_M`` (scaled with depth from ``WRONG_AT_Z_M``)
-  or ``WRONG_ROT_DEG`` off, or whenever the object cannot be seen (hidden or out of the view);
+- the pose is *wrong* as :func:`evservo.runtime.loss.wrong_pose` says (the loops' definition: 30 mm
+  or 10° at Z = 0.6 m, scaled with depth), or whenever the object cannot be seen (hidden or out of the view);
 - *confidently wrong*: wrong while ``est.lost`` is False;
 - *false loss*: ``est.lost`` while the pose is right and the object in view.
 
@@ -26,13 +26,11 @@ from scipy.spatial.transform import Rotation
 
 from evservo import _evcore, geometry
 from evservo.events import EVENT_CD
+from evservo.runtime.loss import spells, wrong_pose
 from evservo.sim.sources import EventSource, make_event_source
 from evservo.synth import EdgeEventGenerator
 from evservo.tracking import Tracker, model_point_set
 
-WRONG_POS_M = 0.03
-WRONG_ROT_DEG = 10.0
-WRONG_AT_Z_M = 0.6
 BACKGROUND_HZ = 50_000.0  # the sensor's background activity over the whole array
 TICK_US = 1000
 START_Z_M = 0.7
@@ -147,14 +145,6 @@ def _in_view(rect: _evcore.Camera, points_o: np.ndarray, T: np.ndarray, min_frac
     return bool(np.mean(inside) >= min_fraction)
 
 
-def wrong_pose(T_est: np.ndarray, T_true: np.ndarray) -> bool:
-    """Beyond ``WRONG_POS_M`` (at ``WRONG_AT_Z_M``, scaled with the true depth) or ``WRONG_ROT_DEG``."""
-    scale = max(float(T_true[2, 3]), 1e-3) / WRONG_AT_Z_M
-    return geometry.translation_error_m(T_est, T_true) > WRONG_POS_M * scale or geometry.rotation_error_rad(
-        T_est, T_true
-    ) > np.deg2rad(WRONG_ROT_DEG)
-
-
 def _source(name: str, camera: _evcore.Camera, obj: str, T0: np.ndarray, seed: int) -> EventSource:
     """The object's events from ``T0`` at t = −0.1 s: ``edges`` (its edge points, 20 % noise) or
     ``render`` (the rendered event camera, with its background plane)."""
@@ -220,14 +210,9 @@ def run_scenario(
         rec["pos_err_m"][k] = geometry.translation_error_m(est.T_c_o, T)
         rec["rot_err_rad"][k] = geometry.rotation_error_rad(est.T_c_o, T)
         lost[k], visible[k] = est.lost, seen
-        wrong[k] = mismatch or not seen or wrong_pose(est.T_c_o, T)
+        err_m, err_rad = geometry.translation_error_m(est.T_c_o, T), geometry.rotation_error_rad(est.T_c_o, T)
+        wrong[k] = mismatch or not seen or bool(wrong_pose(err_m, err_rad, T[2, 3]))
     return ScenarioRun(sc, lost=lost, visible=visible, wrong=wrong, **rec)
-
-
-def _spells(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(start, end) index pairs of the runs of True in ``mask``."""
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True))
 
 
 def score(run: ScenarioRun) -> dict:
@@ -240,7 +225,7 @@ def score(run: ScenarioRun) -> dict:
     dt_ms = TICK_US * 1e-3
     cw = run.wrong & ~run.lost
     delays = []
-    for s, e in _spells(run.wrong):
+    for s, e in spells(run.wrong):
         flagged = np.flatnonzero(run.lost[s:e])
         delays.append((flagged[0] if len(flagged) else e - s) * dt_ms)
     right = ~run.wrong & run.visible
@@ -248,7 +233,7 @@ def score(run: ScenarioRun) -> dict:
     if run.scenario.reappear_s is not None:
         ok = np.flatnonzero(right & ~run.lost & (run.t_s >= run.scenario.reappear_s))
         relock = (run.t_s[ok[0]] - run.scenario.reappear_s) * 1e3 if len(ok) else float("inf")
-    longest = max((e - s for s, e in _spells(cw)), default=0) * dt_ms
+    longest = max((e - s for s, e in spells(cw)), default=0) * dt_ms
     return {
         "detection_delay_ms": max(delays) if delays else float("nan"),
         "relock_ms": relock,
