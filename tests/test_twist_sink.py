@@ -41,7 +41,8 @@ def test_the_gate_watchdog_hands_over_a_zero_twist():
     try:
         arm.command_twist(np.array([0.01, 0, 0, 0, 0, 0]), 0.01)
         deadline = time.monotonic() + 5
-        while arm.gate.watchdog_halts == 0 and time.monotonic() < deadline:
+        # The gate counts the halt before its thread hands the zero twist over: wait for both.
+        while (arm.gate.watchdog_halts == 0 or len(sent) < 2) and time.monotonic() < deadline:
             time.sleep(0.005)
         assert arm.gate.watchdog_halts == 1
         assert len(sent) == 2 and np.any(sent[0][0]) and not np.any(sent[1][0])
