@@ -7,7 +7,7 @@ import pytest
 import qpsolvers
 from scipy.spatial.transform import Rotation
 
-from evservo import _evcore, synth, trajectories
+from evservo import _evcore, geometry, synth, trajectories
 from evservo.robots import follow, ik, sim_arm
 from evservo.robots.base import shift_twist
 from evservo.sim import episode
@@ -167,3 +167,45 @@ def test_an_episode_with_the_reference_code_is_identical(monkeypatch, ff):
     a.pop("wall_s"), b.pop("wall_s")
     assert a == b
     assert a["completed"] and a["events"] > 10_000
+
+
+def reference_as_pose(T, name="pose"):
+    M = np.asarray(T, dtype=np.float64)
+    if M.shape != (4, 4) or not np.all(np.isfinite(M)):
+        raise ValueError(name)
+    R = M[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) <= 0:
+        raise ValueError(name)
+    if np.abs(M[3] - [0, 0, 0, 1]).max() > 1e-9:
+        raise ValueError(name)
+    return np.ascontiguousarray(M)
+
+
+def test_pose_checks_and_rotation_error_equal_their_references():
+    rng = np.random.default_rng(4)
+    for k in range(600):
+        T = geometry.pose(rng.normal(size=3), rng.normal(size=3) * [1.0, 1e-7, 3.0][k % 3])
+        U = geometry.pose(rng.normal(size=3), rng.normal(size=3))
+        want = float(np.arccos(np.clip((np.trace(T[:3, :3].T @ U[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+        assert geometry.rotation_error_rad(T, U) == want
+        assert geometry.rotation_error_rad(T, T) == float(
+            np.arccos(np.clip((np.trace(T[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
+        )
+        bad = T.copy()
+        kind = k % 5
+        if kind == 1:
+            bad[:3, 0] *= -1.0  # a reflection
+        elif kind == 2:
+            bad[:3, :3] *= 1.0 + 2e-6  # not orthonormal
+        elif kind == 3:
+            bad[3, 2] = 1e-8  # bottom row
+        elif kind == 4:
+            bad[1, 3] = np.nan
+        outcomes = []
+        for check in (geometry.as_pose, reference_as_pose):
+            try:
+                outcomes.append(check(bad).tobytes())
+            except ValueError:
+                outcomes.append(None)
+        assert outcomes[0] == outcomes[1]
+        assert (outcomes[0] is None) == (kind != 0)
