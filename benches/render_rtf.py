@@ -4,8 +4,8 @@ camera's equivalence across builds (issue 15). Run with the venv's python from t
 ``episode SRC [--arms] [--duration S]``: one closed-loop episode (fixed cost model, 0.3 m/s, seed 1,
 + 0.1 s pre-roll); prints the process CPU seconds, the real-time factor (simulated s / CPU s, and
 / wall s) with and without the episode's set-up (scene, models, tracker: ``loop_*``), the CPU
-seconds spent in the event source (rendering + sensor) and in the tracker's ``step``, events and
-the ground-truth tracking error.
+seconds spent in the event source (rendering + sensor), in the tracker's ``step`` and in the rest
+of the loop (``rest_cpu_s``: the Python loop and ingest), events and the ground-truth tracking error.
 
 ``record OUT.npz [--arms] [--duration S]``: the rendered source's inputs of one such episode (the
 object, camera and link poses at every tick) for open-loop replays.
@@ -95,6 +95,8 @@ def episode(source: str, arms: bool, duration_s: float) -> dict:
         "loop_cpu_s": round(loop, 2),
         "loop_rtf_cpu": round(sim_s / loop, 4),
         **{k: round(v, 2) for k, v in acc.items()},
+        # The Python loop and ingest: arms, IK, controller, bookkeeping (everything but the two above).
+        "rest_cpu_s": round(loop - acc.get("source_cpu_s", 0.0) - acc.get("tracker_step_cpu_s", 0.0), 2),
         "source_rtf_cpu": round(sim_s / acc["source_cpu_s"], 4) if acc.get("source_cpu_s") else None,
         "events": s["events"],
         "completed": s["completed"],
