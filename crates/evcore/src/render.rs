@@ -121,9 +121,27 @@ impl Tri {
                 return None;
             }
         }
-        let (lo, hi) = (lo.ceil(), hi.floor());
-        (lo <= hi).then_some((lo as i64, hi as i64))
+        // Clamped to one column beyond the box, which keeps every non-empty span and leaves an
+        // empty one empty, so that the integer rounding below stays in range.
+        let lo = ceil_i64(lo.min(self.x_hi as f64 + 1.0));
+        let hi = floor_i64(hi.max(self.x_lo as f64 - 1.0));
+        (lo <= hi).then_some((lo, hi))
     }
+}
+
+/// ⌊v⌋ for finite |v| < 2⁶³. `f64::floor` is a libm call without SSE4.1 (not in the baseline
+/// x86-64 target); this is one cast and a compare.
+#[inline]
+pub(crate) fn floor_i64(v: f64) -> i64 {
+    let i = v as i64;
+    i - i64::from(v < i as f64)
+}
+
+/// ⌈v⌉ for finite |v| < 2⁶³, as [`floor_i64`].
+#[inline]
+pub(crate) fn ceil_i64(v: f64) -> i64 {
+    let i = v as i64;
+    i + i64::from(v > i as f64)
 }
 
 /// A vertex during clipping: camera-frame position and its shading attribute.

@@ -52,7 +52,7 @@ use crate::error::{ensure, Result};
 use crate::event::EventBatch;
 use crate::image::Roi;
 use crate::mesh::Mesh;
-use crate::render::{sphere_misses, RenderOptions, Renderer, NEAR_PLANE_M};
+use crate::render::{floor_i64, sphere_misses, RenderOptions, Renderer, NEAR_PLANE_M};
 use crate::se3::Pose;
 use crate::sim::tiles::{tile_boxes, CanvasBox, Coverage};
 use crate::sim::{EventSimulator, SimParams, TILE_PX};
@@ -183,8 +183,9 @@ impl PlaneRow<'_> {
         Some((
             z,
             (
-                fast_floor(px * self.inv_cell),
-                fast_floor(py * self.inv_cell),
+                // Far-off rays saturate, which only merges cells beyond the horizon.
+                floor_i64(px * self.inv_cell),
+                floor_i64(py * self.inv_cell),
             ),
         ))
     }
@@ -311,14 +312,6 @@ fn same_cells(before: &PlaneInCamera, now: &PlaneInCamera, canvas: &Camera, b: &
             )
         })
     })
-}
-
-/// ⌊v⌋ for finite |v| < 2⁶³ (far-off rays saturate, which only merges cells beyond the
-/// horizon). `f64::floor` is a libm call without SSE4.1; this is one cast and a compare.
-#[inline]
-fn fast_floor(v: f64) -> i64 {
-    let i = v as i64;
-    i - i64::from(v < i as f64)
 }
 
 /// What one [`SimCamera::advance`] did.

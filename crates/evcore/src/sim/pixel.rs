@@ -332,8 +332,10 @@ impl Row {
             return NEVER_DUE;
         }
         let gap = f64::from(self.c_pos[x]) - (f64::from(self.prev_l[x]) - f64::from(self.ref_l[x]));
-        let wait = ((gap - DUE_SLACK_LOG) / leak).floor();
-        // Saturating float-to-int cast: a far-off crossing becomes "never" in practice.
+        let wait = (gap - DUE_SLACK_LOG) / leak;
+        // The cast truncates, which is ⌊wait⌋ once negatives (and NaN) are lifted to 0: no libm
+        // `floor` call (without SSE4.1) for every pixel of every visited segment. Saturating: a
+        // far-off crossing becomes "never" in practice.
         t_us.saturating_add(wait.max(0.0) as i64)
     }
 
@@ -430,12 +432,13 @@ impl Row {
     ) -> f64 {
         let gb = line.at(s_b);
         let (step, n, on) = if gb - r >= cp {
-            (cp, ((gb - r) / cp).floor(), true)
+            (cp, (gb - r) / cp, true)
         } else if r - gb >= cn {
-            (-cn, ((r - gb) / cn).floor(), false)
+            (-cn, (r - gb) / cn, false)
         } else {
             return r;
         };
+        // n ≥ 1 here, where the truncating cast is ⌊n⌋ (without a libm call).
         let n = n as u64;
         for k in 1..=n {
             // Levels from r directly rather than by accumulation, so rounding does not build up.
