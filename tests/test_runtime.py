@@ -137,7 +137,7 @@ def test_watchdog_spells_from_a_per_cycle_record():
 def test_sim_only_options_are_refused_with_robot(tmp_path, capsys):
     code = cli.main(["servo", "--robot", "sim", "--camera", str(tmp_path / "x.raw"), "--speed", "0.3"])
     assert code == 2
-    assert "--speed only apply with --sim" in capsys.readouterr().err
+    assert "--speed only applies with --sim" in capsys.readouterr().err
     code = cli.main(["servo", "--robot", "sim", "--camera", "x.raw", "--object", "box", "--events", "render"])
     assert code == 2
     assert "--object, --events only apply with --sim" in capsys.readouterr().err
