@@ -172,9 +172,7 @@ def _run_real(args: argparse.Namespace) -> int:
         )
         try:
             with viewing(viewer, tracker, source) as (events, on_cycle):
-                result = run_real_loop(
-                    arm, events, tracker, cfg, desired, progress=print, meta=meta, on_cycle=on_cycle
-                )
+                result = run_real_loop(arm, events, tracker, cfg, desired, progress=print, meta=meta, on_cycle=on_cycle)
         finally:
             arm.close()
     finally:
