@@ -199,6 +199,19 @@ const VIEW_MARGIN_PX: f64 = 2.0;
 /// object instead (with a template bank): a start pose that never locks is taken to be wrong.
 const UNCONFIRMED_US: i64 = 100_000;
 
+/// A stretch of event time this long (µs) without a single event is a dropout (sensor, link or a
+/// thinning producer), not a quiet scene: the sensor's background activity alone fires every few
+/// µs. Whatever the front-end held before it shows where things were, not where they are.
+pub const EVENT_GAP_US: i64 = 20_000;
+/// For this long (µs) after events resume from a gap, the solver sees only pixels whose block has
+/// fired since: the pre-gap edges would hold the pose where the object was.
+const AFTER_GAP_US: i64 = 100_000;
+
+/// While lost with a template bank, a global pass runs at most this often (event time, µs); the
+/// steps in between keep tracking locally, so a pose that is right again is trusted again at once
+/// (the global pass alone only accepts a pose it found itself).
+const GLOBAL_PASS_EVERY_US: i64 = 10_000;
+
 /// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
 const MIN_VISIBLE_POINTS: usize = 6;
 
@@ -339,6 +352,9 @@ pub struct TrackerOutput {
     latest: EstimateCell,
     /// Newest event time of the last accepted batch (µs); `i64::MIN` before any.
     newest_t_us: AtomicI64,
+    /// Time (µs) of the first event after the last gap of at least [`EVENT_GAP_US`] in the
+    /// stream; `i64::MIN` if none.
+    resumed_at_us: AtomicI64,
     /// Accepted non-empty batches; the solver compares it to see whether anything new arrived.
     batches: AtomicU64,
     offered: AtomicU64,
@@ -359,6 +375,7 @@ impl TrackerOutput {
         Self {
             latest: EstimateCell::new(initial),
             newest_t_us: AtomicI64::new(i64::MIN),
+            resumed_at_us: AtomicI64::new(i64::MIN),
             batches: AtomicU64::new(0),
             offered: AtomicU64::new(0),
             ingested: AtomicU64::new(0),
@@ -523,6 +540,12 @@ impl Ingest {
             return Ok(());
         }
         let (first_t, last_t) = (events.t_at(0), events.t_at(n - 1));
+        if self
+            .last_t_us
+            .is_some_and(|prev| first_t - prev >= EVENT_GAP_US)
+        {
+            self.out.resumed_at_us.store(first_t, Ordering::Release);
+        }
         let validated = Instant::now();
         let keep = if thin {
             self.thinning.offer(n, first_t, last_t, self.last_t_us)
@@ -593,6 +616,7 @@ impl Ingest {
             f.reset();
         }
         self.out.newest_t_us.store(i64::MIN, Ordering::Release);
+        self.out.resumed_at_us.store(i64::MIN, Ordering::Release);
     }
 }
 
@@ -630,6 +654,11 @@ pub struct Solver {
     points_dir_o: Option<Vector3<f64>>,
     /// What the events said at the last tracked pose (diagnostics).
     evidence: Evidence,
+    /// A pose was given or trusted once: while lost, local steps track on from it between the
+    /// global passes.
+    had_pose: bool,
+    /// Event time (µs) of the last global pass.
+    last_global_us: Option<i64>,
 }
 
 fn check_pose(pose: &Pose) -> Result<()> {
@@ -697,6 +726,8 @@ impl Solver {
             bank: None,
             points_dir_o: None,
             evidence: Evidence::default(),
+            had_pose: true,
+            last_global_us: None,
         };
         solver.publish();
         Ok(solver)
@@ -725,6 +756,7 @@ impl Solver {
         // is tracked from, not searched for.
         self.last.lost = true;
         self.searching = false;
+        self.had_pose = true;
         self.unconfirmed_since_us = None;
         self.motion.reset();
         self.schedule.restart();
@@ -735,16 +767,23 @@ impl Solver {
     /// One update: rebuild the field from the current active set and run the next scheduled step
     /// (or, while lost with a template bank, one global search).
     fn step(&mut self) -> Estimate {
+        // Read before the mask: every event up to this time is in what the mask shows.
+        let t_us = self.out.newest_t_us().unwrap_or(self.last.t_us);
         if self.searching {
             if let Some(bank) = self.bank.clone() {
-                return self.reacquire(&bank);
+                // Without a pose ever trusted there is nothing to track locally.
+                let due = self
+                    .last_global_us
+                    .is_none_or(|t| t_us - t >= GLOBAL_PASS_EVERY_US || t_us < t);
+                if due || !self.had_pose {
+                    self.last_global_us = Some(t_us);
+                    return self.reacquire(&bank);
+                }
             }
         }
         let kind = self.schedule.next_step();
         let started = Instant::now();
         let pose = self.last.pose;
-        // Read before the mask: every event up to this time is in what the mask shows.
-        let t_us = self.out.newest_t_us().unwrap_or(self.last.t_us);
         let n_events = self.out.ingested.load(Ordering::Relaxed);
         let margin = match kind {
             StepKind::Lm => self.config.roi_margin_px,
@@ -782,6 +821,10 @@ impl Solver {
         };
         self.mask.resize(roi.area(), 0);
         self.reader.fill_mask(roi, &mut self.mask);
+        let resumed = self.out.resumed_at_us.load(Ordering::Acquire);
+        if resumed != i64::MIN && (0..AFTER_GAP_US).contains(&(t_us - resumed)) {
+            self.recency.keep_fresh(&mut self.mask, roi, resumed);
+        }
         let built = self.field.build(&self.mask, roi, n_levels);
         let new_pose = match (&built, kind) {
             (Err(_), _) => pose,
@@ -1004,6 +1047,7 @@ impl Solver {
                 self.last.lost = false;
                 self.last.visible_fraction = 1.0;
                 self.searching = false;
+                self.had_pose = true;
                 self.motion.reset();
                 self.schedule.restart();
             }
@@ -1119,6 +1163,7 @@ impl TrackerCore {
         core.solver.points_dir_o = Some(view.dir_o);
         core.solver.bank = Some(Arc::new(bank));
         core.solver.searching = true;
+        core.solver.had_pose = false;
         Ok(core)
     }
 
@@ -1129,6 +1174,7 @@ impl TrackerCore {
         s.last.lost = true;
         s.last.confidence = 0.0;
         s.searching = true;
+        s.had_pose = false;
         s.publish();
     }
 
