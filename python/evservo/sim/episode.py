@@ -212,7 +212,8 @@ class EpisodeResult:
     ``"tracking lost"`` or ``"arm error: …"``. ``steps``: tracker steps published, per kind.
     ``busy_s``: solver time charged to the clock; ``ingest_busy_s``: producer (ingest) time charged.
     ``lost``: the tracker's flag on that estimate; ``holding``: the loop was not servoing on it
-    (:class:`~evservo.control.hold.LossHold` holding, searching or ramping back in); ``seen``: the
+    (:class:`~evservo.control.hold.LossHold` holding, searching or ramping back in); ``coasting``: it
+    followed the object's predicted motion through a loss (LossHold coasting); ``seen``: the
     object's events reached the tracker and at least half of it was in the image.
     """
 
@@ -238,6 +239,7 @@ class EpisodeResult:
     lost: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     holding: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     seen: np.ndarray = field(default_factory=lambda: np.ones(0, bool))
+    coasting: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     ingest_busy_s: float = 0.0
 
     @property
@@ -468,6 +470,7 @@ def run_episode(
         "joint_speed_ratio": np.zeros(n),
         "lost": np.zeros(n, bool),
         "holding": np.zeros(n, bool),
+        "coasting": np.zeros(n, bool),
         "seen": np.zeros(n, bool),
     }
     T_c_o_true = [T_c_o0]  # per tick, to score an estimate against the truth at its own time
@@ -517,7 +520,8 @@ def run_episode(
             rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
             rec["watchdog"][k], rec["arm_limited"][k] = watchdog, arm_limited
             rec["joint_speed_ratio"][k] = np.max(np.abs(scene.panda.qd) / scene.panda.limits.qd_max)
-            rec["lost"][k], rec["holding"][k] = lost, mode != "servoing"
+            rec["lost"][k], rec["holding"][k] = lost, mode not in ("servoing", "coasting")
+            rec["coasting"][k] = mode == "coasting"
             rec["seen"][k] = disturb.seen(t) and in_view(T_c_o_true[k])
             done = k + 1
 
@@ -616,12 +620,14 @@ def loss_summary(result: EpisodeResult, pos_err_m: np.ndarray, rot_err_rad: np.n
     """How the tracker's ``lost`` flag did (:func:`evservo.runtime.loss.loss_metrics`) given each
     tick's tracking error (m, rad) and true depth (m): a pose is wrong beyond the issue's bounds, while
     the object is not seen, or always when the tracker's model is not the object's. Adds the time the
-    loop spent not servoing (holding, searching or ramping back in)."""
+    loop spent not servoing (holding, searching or ramping back in) and the time it followed the
+    object's predicted motion through a loss (coasting)."""
     r, cfg = result, result.config
     mismatch = cfg.model is not None and cfg.model != cfg.object
     wrong = wrong_pose(pos_err_m, rot_err_rad, z_m) | ~r.seen | mismatch
     out = loss_metrics(r.t_s, r.lost, wrong, r.seen, started_lost=cfg.start_lost)
     out["holding_s"] = float(np.sum(r.holding)) * TICK_US * 1e-6
+    out["coasting_s"] = float(np.sum(r.coasting)) * TICK_US * 1e-6
     return out
 
 
