@@ -59,7 +59,9 @@ def _hold(coast_s: float = 0.1) -> LossHold:
 def _servo_error_m(t, cams) -> np.ndarray:
     """Per period: how far the object is from where the desired pose (the start's) puts it (m)."""
     des = _linear(0.0)
-    return np.array([geometry.translation_error_m(geometry.inv(c) @ _linear(ti), des) for ti, c in zip(t, cams)])
+    return np.array(
+        [geometry.translation_error_m(geometry.inv(c) @ _linear(ti), des) for ti, c in zip(t, cams, strict=True)]
+    )
 
 
 @pytest.mark.parametrize("age_s", [0.0, 0.04])
