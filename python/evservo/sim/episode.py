@@ -57,7 +57,7 @@ from evservo.runtime.metrics import estimate_lag_s, rms
 from evservo.runtime.report import plot_motion, write_log, write_summary
 from evservo.runtime.watchdog import WatchdogSpell, spells_from_flags
 from evservo.sim.arms import ArmMeshes
-from evservo.sim.disturb import Disturbances, check_spells
+from evservo.sim.disturb import Disturbances, check_spells, within
 from evservo.sim.scene import DualArmScene
 from evservo.sim.sources import EVENT_SOURCES, RENDERED_SOURCES, EventSource, make_event_source
 from evservo.tracking import FRONTENDS, SOLVERS, Tracker, model_point_set
@@ -112,6 +112,10 @@ class EpisodeConfig:
     object again by itself after a loss (always on with ``start_lost``);
     ``end_on_loss`` False runs the episode to its end through losses, scoring the tracker's ``lost``
     flag (``summary["loss"]``) instead of ending at the first estimate off the truth.
+    The loop's reaction to a loss (:class:`~evservo.control.hold.LossHold`): ``coast_s`` how long
+    after the newest trusted pose it follows the object's predicted motion before braking (0: brake at
+    once); ``false_losses`` spells (seconds) in which the tracker's ``lost`` flag is forced on whatever
+    its pose (a false loss on purpose, to test that reaction; scored like the tracker's own).
     """
 
     object: str = "box"
@@ -152,6 +156,8 @@ class EpisodeConfig:
     start_lost: bool = False
     reacquire: bool = False
     end_on_loss: bool = True
+    coast_s: float = 0.1
+    false_losses: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.tracker not in SOLVERS:
@@ -194,6 +200,9 @@ class EpisodeConfig:
         if self.dropout_s is not None and not self.dropout_s[0] < self.dropout_s[1]:
             raise ValueError("dropout_s must be (start, end) with start < end")
         check_spells(self.occlusions, "occlusions")
+        check_spells(self.false_losses, "false_losses")
+        if not (np.isfinite(self.coast_s) and self.coast_s >= 0):
+            raise ValueError(f"coast_s must be finite and >= 0, got {self.coast_s}")
         check_spells(() if self.noise_s is None else (self.noise_s,), "noise_s")
         if not (np.isfinite(self.noise_rate_hz) and self.noise_rate_hz >= 0):
             raise ValueError(f"noise_rate_hz must be finite and >= 0, got {self.noise_rate_hz}")
@@ -442,7 +451,7 @@ def run_episode(
         lookahead_s=cfg.panda_latency_s,
         predict_accel=cfg.predictor == "acceleration",
     )
-    hold = LossHold(pbvs)
+    hold = LossHold(pbvs, coast_s=cfg.coast_s)
     if cfg.start_lost:
         hold.search()  # the desired pose is captured once the tracker has locked
     else:
@@ -492,10 +501,10 @@ def run_episode(
                 v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
                 est = tracker.latest(t_us)
                 # The start estimate (seq 0) reads lost before any update: a loss only without a start pose.
-                lost = est.lost and (est.seq > 0 or cfg.start_lost)
+                lost = (est.lost and (est.seq > 0 or cfg.start_lost)) or within(t, cfg.false_losses)
                 if k % ctrl_every == 0:
                     # A pose counts once, and not at all when the tracker flags itself lost.
-                    fresh = est.seq != last_seq and not est.lost
+                    fresh = est.seq != last_seq and not (est.lost or lost)
                     last_seq = est.seq
                     cmd = hold.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6, lost)
                     v_cmd, watchdog, mode = cmd.v_c_w, cmd.watchdog, cmd.mode
