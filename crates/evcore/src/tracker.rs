@@ -170,6 +170,20 @@ pub struct Estimate {
     /// The pose is not to be trusted: before the first update confirms it, once the confidence
     /// fell below `lost_below` until it is back above `relock_above`, or the model is out of view.
     pub lost: bool,
+    /// When the batch holding the newest event behind this estimate (`t_us`) was handed to
+    /// ingest ([`crate::clock::now_ns`], ns; 0 before any event).
+    pub pushed_ns: u64,
+    /// When this estimate was published ([`crate::clock::now_ns`], ns). `published_ns −
+    /// pushed_ns` is the event-to-pose latency of its newest event, measured where it happens,
+    /// whoever reads the estimate and however late.
+    pub published_ns: u64,
+}
+
+impl Estimate {
+    /// Event-to-pose latency of the newest event behind this estimate (ns; None before any event).
+    pub fn latency_ns(&self) -> Option<u64> {
+        (self.pushed_ns != 0).then(|| self.published_ns.saturating_sub(self.pushed_ns))
+    }
 }
 
 /// Per-kind step counts and time spent (wall clock, seconds), and what happened to the events.
@@ -258,10 +272,13 @@ fn hold_axes(prior: &Pose, new: Pose, axes: &[(Vector3<f64>, Vector3<f64>)]) -> 
     out
 }
 
-/// A lock-free single-writer cell holding the newest estimate (a seqlock over 16 words).
+/// Words of an encoded [`Estimate`].
+const ESTIMATE_WORDS: usize = 18;
+
+/// A lock-free single-writer cell holding the newest estimate (a seqlock over its words).
 pub struct EstimateCell {
     version: AtomicU64,
-    words: [AtomicU64; 16],
+    words: [AtomicU64; ESTIMATE_WORDS],
 }
 
 impl EstimateCell {
@@ -274,7 +291,7 @@ impl EstimateCell {
         cell
     }
 
-    fn encode(e: &Estimate) -> [u64; 16] {
+    fn encode(e: &Estimate) -> [u64; ESTIMATE_WORDS] {
         let t = e.pose.translation.vector;
         let q = e.pose.rotation.coords;
         [
@@ -294,10 +311,12 @@ impl EstimateCell {
             u64::from(e.lost),
             u64::from(e.visible_fraction.to_bits()),
             u64::from(e.confidence.to_bits()),
+            e.pushed_ns,
+            e.published_ns,
         ]
     }
 
-    fn decode(w: &[u64; 16]) -> Estimate {
+    fn decode(w: &[u64; ESTIMATE_WORDS]) -> Estimate {
         let f = f64::from_bits;
         let q = UnitQuaternion::new_unchecked(Quaternion::new(f(w[6]), f(w[3]), f(w[4]), f(w[5])));
         Estimate {
@@ -315,6 +334,8 @@ impl EstimateCell {
             lost: w[13] != 0,
             visible_fraction: f32::from_bits(w[14] as u32),
             confidence: f32::from_bits(w[15] as u32),
+            pushed_ns: w[16],
+            published_ns: w[17],
         }
     }
 
@@ -337,7 +358,8 @@ impl EstimateCell {
                 std::hint::spin_loop();
                 continue;
             }
-            let words: [u64; 16] = std::array::from_fn(|i| self.words[i].load(Ordering::Relaxed));
+            let words: [u64; ESTIMATE_WORDS] =
+                std::array::from_fn(|i| self.words[i].load(Ordering::Relaxed));
             fence(Ordering::Acquire);
             if self.version.load(Ordering::Relaxed) == v1 {
                 return Self::decode(&words);
@@ -346,12 +368,59 @@ impl EstimateCell {
     }
 }
 
+/// The newest accepted batch: its last event time and when it was pushed, read as one pair (a
+/// seqlock; the ingest half is its only writer).
+struct NewestBatch {
+    version: AtomicU64,
+    /// Event time (µs); `i64::MIN` before any batch.
+    t_us: AtomicI64,
+    /// [`crate::clock::now_ns`] when the batch was handed to ingest.
+    pushed_ns: AtomicU64,
+}
+
+impl NewestBatch {
+    fn new() -> Self {
+        Self {
+            version: AtomicU64::new(0),
+            t_us: AtomicI64::new(i64::MIN),
+            pushed_ns: AtomicU64::new(0),
+        }
+    }
+
+    /// Only the ingest half writes. Release: a reader that sees the pair also sees the events
+    /// ingested before it.
+    fn set(&self, t_us: i64, pushed_ns: u64) {
+        let v = self.version.load(Ordering::Relaxed);
+        self.version.store(v.wrapping_add(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        self.t_us.store(t_us, Ordering::Relaxed);
+        self.pushed_ns.store(pushed_ns, Ordering::Relaxed);
+        self.version.store(v.wrapping_add(2), Ordering::Release);
+    }
+
+    /// (event time µs, push stamp ns) of the newest batch; None before any.
+    fn get(&self) -> Option<(i64, u64)> {
+        loop {
+            let v1 = self.version.load(Ordering::Acquire);
+            if v1 % 2 == 1 {
+                std::hint::spin_loop();
+                continue;
+            }
+            let t = self.t_us.load(Ordering::Relaxed);
+            let pushed = self.pushed_ns.load(Ordering::Relaxed);
+            fence(Ordering::Acquire);
+            if self.version.load(Ordering::Relaxed) == v1 {
+                return (t != i64::MIN).then_some((t, pushed));
+            }
+        }
+    }
+}
+
 /// What both halves of a tracker publish, readable from any thread without locks: the newest
-/// estimate, the newest ingested event time and live counters.
+/// estimate, the newest ingested batch and live counters.
 pub struct TrackerOutput {
     latest: EstimateCell,
-    /// Newest event time of the last accepted batch (µs); `i64::MIN` before any.
-    newest_t_us: AtomicI64,
+    newest: NewestBatch,
     /// Time (µs) of the first event after the last gap of at least [`EVENT_GAP_US`] in the
     /// stream; `i64::MIN` if none.
     resumed_at_us: AtomicI64,
@@ -374,7 +443,7 @@ impl TrackerOutput {
     fn new(initial: &Estimate) -> Self {
         Self {
             latest: EstimateCell::new(initial),
-            newest_t_us: AtomicI64::new(i64::MIN),
+            newest: NewestBatch::new(),
             resumed_at_us: AtomicI64::new(i64::MIN),
             batches: AtomicU64::new(0),
             offered: AtomicU64::new(0),
@@ -413,9 +482,9 @@ impl TrackerOutput {
         }
     }
 
-    fn newest_t_us(&self) -> Option<i64> {
-        let t = self.newest_t_us.load(Ordering::Acquire);
-        (t != i64::MIN).then_some(t)
+    /// (event time µs, push stamp ns) of the newest accepted batch; None before any.
+    fn newest(&self) -> Option<(i64, u64)> {
+        self.newest.get()
     }
 }
 
@@ -533,6 +602,7 @@ impl Ingest {
     /// Validate `events` and insert them (all of them when `thin` is false, else the fraction the
     /// ingest limit allows). A rejected batch changes nothing.
     pub fn push<E: EventRecords + ?Sized>(&mut self, events: &E, thin: bool) -> Result<()> {
+        let pushed_ns = crate::clock::now_ns();
         let started = Instant::now();
         validate_events(events, self.width, self.height, self.last_t_us)?;
         let n = events.n_events();
@@ -601,7 +671,7 @@ impl Ingest {
         self.out.offered.fetch_add(n as u64, Ordering::Relaxed);
         self.out.ingested.fetch_add(kept as u64, Ordering::Relaxed);
         // Release: a solver that sees this time (or batch count) also sees the events in its mask.
-        self.out.newest_t_us.store(last_t, Ordering::Release);
+        self.out.newest.set(last_t, pushed_ns);
         self.out.batches.fetch_add(1, Ordering::Release);
         Ok(())
     }
@@ -615,7 +685,7 @@ impl Ingest {
         if let Some(f) = &mut self.flicker {
             f.reset();
         }
-        self.out.newest_t_us.store(i64::MIN, Ordering::Release);
+        self.out.newest.set(i64::MIN, 0);
         self.out.resumed_at_us.store(i64::MIN, Ordering::Release);
     }
 }
@@ -692,7 +762,7 @@ impl Solver {
         let schedule = Schedule::new(config.solver, config.n_search)?;
         let pivot_o = centroid(&points_o);
         let view = ViewMask::new(&sensor, VIEW_MARGIN_PX);
-        let solver = Self {
+        let mut solver = Self {
             sensor,
             rect,
             reader,
@@ -714,6 +784,8 @@ impl Solver {
                 n_events: 0,
                 confidence: 0.0,
                 lost: true,
+                pushed_ns: 0,
+                published_ns: 0,
             },
             config,
             mask: Vec::new(),
@@ -733,8 +805,17 @@ impl Solver {
         Ok(solver)
     }
 
-    fn publish(&self) {
+    /// Stamp the estimate with the time and hand it to readers.
+    fn publish(&mut self) {
+        self.last.published_ns = crate::clock::now_ns();
         self.out.latest.publish(&self.last);
+    }
+
+    /// (event time µs, push stamp ns) of the newest batch, or the last estimate's before any.
+    fn newest(&self) -> (i64, u64) {
+        self.out
+            .newest()
+            .unwrap_or((self.last.t_us, self.last.pushed_ns))
     }
 
     /// Region of the rectified image around the model projected at the current pose.
@@ -768,7 +849,8 @@ impl Solver {
     /// (or, while lost with a template bank, one global search).
     fn step(&mut self) -> Estimate {
         // Read before the mask: every event up to this time is in what the mask shows.
-        let t_us = self.out.newest_t_us().unwrap_or(self.last.t_us);
+        let newest = self.newest();
+        let t_us = newest.0;
         if self.searching {
             if let Some(bank) = self.bank.clone() {
                 // Without a pose ever trusted there is nothing to track locally.
@@ -790,7 +872,7 @@ impl Solver {
             StepKind::Search => self.config.search_roi_margin_px,
         };
         let Some(roi) = self.roi(margin) else {
-            self.lose(t_us, n_events, 1.0);
+            self.lose(newest, n_events, 1.0);
             return self.last;
         };
         let mut visible = std::mem::take(&mut self.visible);
@@ -803,7 +885,7 @@ impl Solver {
         let visible_fraction = visible.len() as f32 / self.points.len() as f32;
         if visible.len() < MIN_VISIBLE_POINTS {
             self.visible = visible;
-            self.lose(t_us, n_events, visible_fraction);
+            self.lose(newest, n_events, visible_fraction);
             return self.last;
         }
         let whole = visible_fraction >= FULL_VIEW_FRACTION
@@ -898,6 +980,8 @@ impl Solver {
             n_events,
             confidence,
             lost,
+            pushed_ns: newest.1,
+            published_ns: 0,
         };
         self.publish();
         let ns = started.elapsed().as_nanos() as u64;
@@ -914,9 +998,10 @@ impl Solver {
 impl Solver {
     /// Publish an update without a pose change: the object is out of view (or nothing of it
     /// projects), so the pose cannot be trusted and is searched for.
-    fn lose(&mut self, t_us: i64, n_events: u64, visible_fraction: f32) {
+    fn lose(&mut self, (t_us, pushed_ns): (i64, u64), n_events: u64, visible_fraction: f32) {
         self.last.seq += 1;
         self.last.t_us = t_us;
+        self.last.pushed_ns = pushed_ns;
         self.last.n_events = n_events;
         self.last.visible_fraction = visible_fraction;
         self.last.confidence = 0.0;
@@ -995,7 +1080,7 @@ impl Solver {
     /// confident is taken if it passes `reacquire_above`; otherwise the tracker stays lost.
     fn reacquire(&mut self, bank: &TemplateBank) -> Estimate {
         let started = Instant::now();
-        let t_us = self.out.newest_t_us().unwrap_or(self.last.t_us);
+        let (t_us, pushed_ns) = self.newest();
         let n_events = self.out.ingested.load(Ordering::Relaxed);
         let full = Roi::full(self.rect.width, self.rect.height);
         let levels = self.config.field.levels;
@@ -1035,6 +1120,7 @@ impl Solver {
         }
         self.last.seq += 1;
         self.last.t_us = t_us;
+        self.last.pushed_ns = pushed_ns;
         self.last.n_events = n_events;
         self.last.step = StepKind::Lm;
         match best {
@@ -1128,6 +1214,8 @@ impl TrackerCore {
             n_events: 0,
             confidence: 0.0,
             lost: true,
+            pushed_ns: 0,
+            published_ns: 0,
         };
         let out = Arc::new(TrackerOutput::new(&placeholder));
         let recency = Arc::new(Recency::new(&camera, &camera.rectified()));
@@ -1613,6 +1701,56 @@ mod tests {
     }
 
     #[test]
+    fn latency_runs_from_the_push_of_the_newest_batch_to_the_publication() {
+        let (mut core, pts, pose) = core(IngestLimit::Off);
+        let cam = *core.camera();
+        assert_eq!(core.latest().latency_ns(), None, "no event yet");
+        let before = crate::clock::now_ns();
+        core.ingest(outline_events(&cam, &pts, &pose, 0, 2000).as_slice())
+            .unwrap();
+        thread::sleep(Duration::from_millis(3));
+        let second = crate::clock::now_ns();
+        core.ingest(outline_events(&cam, &pts, &pose, 1000, 2000).as_slice())
+            .unwrap();
+        thread::sleep(Duration::from_millis(5));
+        let est = core.step();
+        let after = crate::clock::now_ns();
+        // The stamp is the second batch's (it holds the newest event), not the first's.
+        assert_eq!(est.t_us, 1199);
+        assert!(est.pushed_ns >= second && est.pushed_ns <= est.published_ns);
+        assert!(est.pushed_ns > before + 3_000_000, "{est:?}");
+        assert!(est.published_ns <= after);
+        let latency = est.latency_ns().unwrap();
+        assert!((5_000_000..after - second).contains(&latency), "{latency}");
+        assert_eq!(core.output().latest(), est);
+        // A later step on the same events keeps the push stamp: its latency only grows.
+        let again = core.step();
+        assert_eq!(again.pushed_ns, est.pushed_ns);
+        assert!(again.published_ns >= est.published_ns);
+        core.reset_events();
+        assert_eq!(core.output().newest(), None);
+    }
+
+    #[test]
+    fn newest_batch_pairs_are_never_torn() {
+        let cell = Arc::new(NewestBatch::new());
+        let reader = {
+            let cell = Arc::clone(&cell);
+            thread::spawn(move || {
+                for _ in 0..200_000 {
+                    if let Some((t, pushed)) = cell.get() {
+                        assert_eq!(pushed, t as u64 * 3);
+                    }
+                }
+            })
+        };
+        for t in 1..200_000i64 {
+            cell.set(t, t as u64 * 3);
+        }
+        reader.join().unwrap();
+    }
+
+    #[test]
     fn absurd_time_is_refused_and_the_time_line_can_restart() {
         let (mut core, pts, pose) = core(IngestLimit::Off);
         let cam = *core.camera();
@@ -1745,6 +1883,8 @@ mod tests {
             n_events: seq * 3,
             confidence: 0.25,
             lost: false,
+            pushed_ns: seq * 7,
+            published_ns: seq * 11,
         };
         let cell = Arc::new(EstimateCell::new(&mk(0)));
         assert_eq!(cell.read(), mk(0));
@@ -1757,6 +1897,7 @@ mod tests {
                     // Never torn: every field belongs to the same publication.
                     assert_eq!(e.t_us, e.seq as i64 * 10);
                     assert_eq!(e.n_events, e.seq * 3);
+                    assert_eq!((e.pushed_ns, e.published_ns), (e.seq * 7, e.seq * 11));
                     assert!(e.seq >= last);
                     last = e.seq;
                 }
