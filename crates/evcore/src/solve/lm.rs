@@ -76,6 +76,25 @@ pub struct LmReport {
     /// `n_held` of the six columns are valid.
     pub held: [Vector6<f64>; 6],
     pub n_held: usize,
+    /// The translation scale of `held` (metres): the model's radius about the pivot.
+    pub radius_m: f64,
+}
+
+impl LmReport {
+    /// `xi` (an increment about the pivot in the camera frame, metres and radians) without its
+    /// components along the held directions: what the search steps between two LM steps may still
+    /// move. A search candidate is a one-pixel move along one axis; where the points do not
+    /// constrain a direction, which candidate wins along it is decided by noise, and four such wins
+    /// per cycle random-walk the pose there (the can at 1.2 m spins by degrees in the first
+    /// milliseconds, before its label fires).
+    pub fn without_held(&self, xi: &Vector6<f64>) -> Vector6<f64> {
+        let s = scale(self.radius_m);
+        let mut scaled = s.try_inverse().unwrap_or_else(Matrix6::identity) * xi;
+        for h in &self.held[..self.n_held] {
+            scaled -= h * h.dot(&scaled);
+        }
+        s * scaled
+    }
 }
 
 /// (ρ(r), weight ρ'(r)/r) of the robust loss with threshold k.
@@ -368,6 +387,7 @@ pub fn lm_pyramid<M: CostMap>(
         cost,
         held,
         n_held,
+        radius_m,
     }
 }
 
@@ -457,6 +477,31 @@ mod tests {
         assert!((1..=2).contains(&out.n_held), "{} held", out.n_held);
         let along_x: f64 = out.held[..out.n_held].iter().map(|h| h[0] * h[0]).sum();
         assert!(along_x > 0.99, "x lies outside the held span: {along_x}");
+    }
+
+    #[test]
+    fn search_increments_lose_only_their_held_part() {
+        // Held: sliding along x (scaled by the radius) and the spin about z.
+        let mut report = LmReport {
+            pose: Pose::identity(),
+            iterations: 0,
+            cost: 0.0,
+            held: [Vector6::zeros(); 6],
+            n_held: 2,
+            radius_m: 0.05,
+        };
+        report.held[0] = Vector6::new(1.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        report.held[1] = Vector6::new(0.0, 0.0, 0.0, 0.0, 0.0, 1.0);
+        let xi = Vector6::new(0.002, -0.001, 0.003, 0.01, -0.02, 0.03);
+        let kept = report.without_held(&xi);
+        assert_eq!(kept, Vector6::new(0.0, -0.001, 0.003, 0.01, -0.02, 0.0));
+        // A held direction mixing translation and rotation is removed in the scaled coordinates.
+        report.n_held = 1;
+        report.held[0] = Vector6::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0) / 2f64.sqrt();
+        let along = report.without_held(&Vector6::new(0.05 * 0.01, 0.0, 0.0, 0.0, 0.01, 0.0));
+        assert!(along.amax() < 1e-15, "{along:?}");
+        report.n_held = 0;
+        assert_eq!(report.without_held(&xi), xi);
     }
 
     #[test]
