@@ -30,9 +30,10 @@ use crate::event::{validate_events, EventRecords};
 use crate::field::{DistanceField, FieldParams};
 use crate::freshness::{max_age_us, MotionMemory, Recency};
 use crate::image::Roi;
+use crate::se3::unit_twist;
 use crate::se3::Pose;
-use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32, ViewMask};
-use crate::solve::lm::{lm_pyramid, LmParams};
+use crate::solve::cost::{apply_increment, centroid, cost_stats, Pinhole, Rigid32, ViewMask};
+use crate::solve::lm::{lm_pyramid, LmParams, LmReport};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
 use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
@@ -702,6 +703,8 @@ pub struct Solver {
     view: ViewMask,
     /// The points visible at the current step (reused buffer).
     visible: Vec<[f32; 3]>,
+    /// The last LM step of this cycle: its held directions are held in the search steps too.
+    last_lm: Option<LmReport>,
     schedule: Schedule,
     config: TrackerConfig,
     last: Estimate,
@@ -772,6 +775,7 @@ impl Solver {
             pins,
             view,
             visible: Vec::new(),
+            last_lm: None,
             schedule,
             last: Estimate {
                 pose: t_c_o,
@@ -833,6 +837,7 @@ impl Solver {
     fn reset_pose(&mut self, t_c_o: Pose) -> Result<()> {
         check_pose(&t_c_o)?;
         self.last.pose = t_c_o;
+        self.last_lm = None;
         // Not locked until an update confirms the new pose against the events; but a given pose
         // is tracked from, not searched for.
         self.last.lost = true;
@@ -915,19 +920,30 @@ impl Solver {
                     .rev()
                     .map(|l| (self.field.level(l), self.pins[l as usize]))
                     .collect();
-                lm_pyramid(&levels, pose, &visible, &self.pivot_o, &self.config.lm).pose
+                let report = lm_pyramid(&levels, pose, &visible, &self.pivot_o, &self.config.lm);
+                self.last_lm = Some(report);
+                report.pose
             }
             (Ok(()), StepKind::Search) => {
                 let deltas = axis_steps(&self.pins[0], &pose, &visible, &self.pivot_o, 8);
-                search_step(
+                let out = search_step(
                     self.field.level(0),
                     &self.pins[0],
                     &pose,
                     &visible,
                     &self.pivot_o,
                     &deltas,
-                )
-                .pose
+                );
+                match &self.last_lm {
+                    Some(lm) if lm.n_held > 0 && out.candidate > 0 => {
+                        let k = (out.candidate - 1) / 2;
+                        let sign = if out.candidate % 2 == 1 { 1.0 } else { -1.0 };
+                        let xi = lm.without_held(&(unit_twist(k) * (sign * deltas[k])));
+                        let pivot_c = pose * Point3::from(self.pivot_o);
+                        apply_increment(&pose, &xi, &pivot_c.coords)
+                    }
+                    _ => out.pose,
+                }
             }
         };
         let new_pose = hold_axes(&pose, new_pose, &self.config.held_axes_o);
@@ -1155,6 +1171,7 @@ impl Solver {
         self.points.clone_from(&bank.views[v].points_o);
         self.pivot_o = centroid(&self.points);
         self.points_dir_o = Some(bank.views[v].dir_o);
+        self.last_lm = None;
     }
 
     /// Swap S* for the bank's view nearest to `pose` once the object has turned more than ¾ of the
