@@ -158,10 +158,6 @@ def test_a_hardware_rig_loads_no_simulator():
 
 def test_the_command_line_starts_without_the_mesh_library():
     """``evservo --help`` and argument errors need no trimesh (about 2 s to import)."""
-    code = (
-        "import sys, evservo, evservo.cli\n"
-        "evservo.cli.build_parser()\n"
-        "print('trimesh' in sys.modules)\n"
-    )
+    code = "import sys, evservo, evservo.cli\nevservo.cli.build_parser()\nprint('trimesh' in sys.modules)\n"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
