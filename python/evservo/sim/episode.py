@@ -57,7 +57,7 @@ from evservo.runtime.metrics import estimate_lag_s, rms
 from evservo.runtime.report import plot_motion, write_log, write_summary
 from evservo.runtime.watchdog import WatchdogSpell, spells_from_flags
 from evservo.sim.arms import ArmMeshes
-from evservo.sim.disturb import Disturbances, check_spells
+from evservo.sim.disturb import Disturbances, check_spells, within
 from evservo.sim.scene import DualArmScene
 from evservo.sim.sources import EVENT_SOURCES, RENDERED_SOURCES, EventSource, make_event_source
 from evservo.tracking import FRONTENDS, SOLVERS, Tracker, model_point_set
@@ -112,6 +112,10 @@ class EpisodeConfig:
     object again by itself after a loss (always on with ``start_lost``);
     ``end_on_loss`` False runs the episode to its end through losses, scoring the tracker's ``lost``
     flag (``summary["loss"]``) instead of ending at the first estimate off the truth.
+    The loop's reaction to a loss (:class:`~evservo.control.hold.LossHold`): ``coast_s`` how long
+    after the newest trusted pose it follows the object's predicted motion before braking (0: brake at
+    once); ``false_losses`` spells (seconds) in which the tracker's ``lost`` flag is forced on whatever
+    its pose (a false loss on purpose, to test that reaction; scored like the tracker's own).
     """
 
     object: str = "box"
@@ -152,6 +156,8 @@ class EpisodeConfig:
     start_lost: bool = False
     reacquire: bool = False
     end_on_loss: bool = True
+    coast_s: float = 0.1
+    false_losses: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.tracker not in SOLVERS:
@@ -194,6 +200,9 @@ class EpisodeConfig:
         if self.dropout_s is not None and not self.dropout_s[0] < self.dropout_s[1]:
             raise ValueError("dropout_s must be (start, end) with start < end")
         check_spells(self.occlusions, "occlusions")
+        check_spells(self.false_losses, "false_losses")
+        if not (np.isfinite(self.coast_s) and self.coast_s >= 0):
+            raise ValueError(f"coast_s must be finite and >= 0, got {self.coast_s}")
         check_spells(() if self.noise_s is None else (self.noise_s,), "noise_s")
         if not (np.isfinite(self.noise_rate_hz) and self.noise_rate_hz >= 0):
             raise ValueError(f"noise_rate_hz must be finite and >= 0, got {self.noise_rate_hz}")
@@ -212,7 +221,8 @@ class EpisodeResult:
     ``"tracking lost"`` or ``"arm error: …"``. ``steps``: tracker steps published, per kind.
     ``busy_s``: solver time charged to the clock; ``ingest_busy_s``: producer (ingest) time charged.
     ``lost``: the tracker's flag on that estimate; ``holding``: the loop was not servoing on it
-    (:class:`~evservo.control.hold.LossHold` holding, searching or ramping back in); ``seen``: the
+    (:class:`~evservo.control.hold.LossHold` holding, searching or ramping back in); ``coasting``: it
+    followed the object's predicted motion through a loss (LossHold coasting); ``seen``: the
     object's events reached the tracker and at least half of it was in the image.
     """
 
@@ -238,6 +248,7 @@ class EpisodeResult:
     lost: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     holding: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     seen: np.ndarray = field(default_factory=lambda: np.ones(0, bool))
+    coasting: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     ingest_busy_s: float = 0.0
 
     @property
@@ -448,7 +459,7 @@ def run_episode(
         lookahead_s=cfg.panda_latency_s,
         predict_accel=cfg.predictor == "acceleration",
     )
-    hold = LossHold(pbvs)
+    hold = LossHold(pbvs, coast_s=cfg.coast_s)
     if cfg.start_lost:
         hold.search()  # the desired pose is captured once the tracker has locked
     else:
@@ -476,6 +487,7 @@ def run_episode(
         "joint_speed_ratio": np.zeros(n),
         "lost": np.zeros(n, bool),
         "holding": np.zeros(n, bool),
+        "coasting": np.zeros(n, bool),
         "seen": np.zeros(n, bool),
     }
     T_c_o_true = [T_c_o0]  # per tick, to score an estimate against the truth at its own time
@@ -501,10 +513,10 @@ def run_episode(
                 v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
                 est = tracker.latest(t_us)
                 # The start estimate (seq 0) reads lost before any update: a loss only without a start pose.
-                lost = est.lost and (est.seq > 0 or cfg.start_lost)
+                lost = (est.lost and (est.seq > 0 or cfg.start_lost)) or within(t, cfg.false_losses)
                 if k % ctrl_every == 0:
                     # A pose counts once, and not at all when the tracker flags itself lost.
-                    fresh = est.seq != last_seq and not est.lost
+                    fresh = est.seq != last_seq and not (est.lost or lost)
                     last_seq = est.seq
                     cmd = hold.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6, lost)
                     v_cmd, watchdog, mode = cmd.v_c_w, cmd.watchdog, cmd.mode
@@ -529,7 +541,8 @@ def run_episode(
             rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
             rec["watchdog"][k], rec["arm_limited"][k] = watchdog, arm_limited
             rec["joint_speed_ratio"][k] = (np.abs(scene.panda.qd) / qd_max).max()
-            rec["lost"][k], rec["holding"][k] = lost, mode != "servoing"
+            rec["lost"][k], rec["holding"][k] = lost, mode not in ("servoing", "coasting")
+            rec["coasting"][k] = mode == "coasting"
             rec["seen"][k] = disturb.seen(t)  # and in view: after the loop, for all ticks at once
             done = k + 1
 
@@ -629,12 +642,14 @@ def loss_summary(result: EpisodeResult, pos_err_m: np.ndarray, rot_err_rad: np.n
     """How the tracker's ``lost`` flag did (:func:`evservo.runtime.loss.loss_metrics`) given each
     tick's tracking error (m, rad) and true depth (m): a pose is wrong beyond the issue's bounds, while
     the object is not seen, or always when the tracker's model is not the object's. Adds the time the
-    loop spent not servoing (holding, searching or ramping back in)."""
+    loop spent not servoing (holding, searching or ramping back in) and the time it followed the
+    object's predicted motion through a loss (coasting)."""
     r, cfg = result, result.config
     mismatch = cfg.model is not None and cfg.model != cfg.object
     wrong = wrong_pose(pos_err_m, rot_err_rad, z_m) | ~r.seen | mismatch
     out = loss_metrics(r.t_s, r.lost, wrong, r.seen, started_lost=cfg.start_lost)
     out["holding_s"] = float(np.sum(r.holding)) * TICK_US * 1e-6
+    out["coasting_s"] = float(np.sum(r.coasting)) * TICK_US * 1e-6
     return out
 
 
