@@ -387,19 +387,27 @@ def _primed_source(
     return source
 
 
-def _view_test(camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, seed: int) -> Callable[[np.ndarray], bool]:
-    """``in_view(T_c_o)``: at least half of the object's edge points (200 of them) are in front of the
-    camera and project into the image."""
+def _view_test(
+    camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, seed: int, chunk: int = 2000
+) -> Callable[[np.ndarray], np.ndarray]:
+    """``in_view(T_c_o)``: per pose of a stack (N, 4, 4), whether at least half of the object's edge
+    points (200 of them) are in front of the camera and project into the image. Run once over the
+    episode's ticks (``chunk`` poses at a time) rather than once per tick: it is the same arithmetic
+    per pose, without the per-call overhead."""
     points = model_point_set(camera, obj, T_c_o0, n_points=200, seed=seed)
 
-    def in_view(T_c_o: np.ndarray) -> bool:
-        p = points @ T_c_o[:3, :3].T + T_c_o[:3, 3]
-        front = p[:, 2] > 1e-3
-        if np.mean(front) < 0.5:
-            return False
-        uv = camera.project(p[front])
-        inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
-        return bool(np.sum(inside) >= 0.5 * len(points))
+    def in_view(T_c_o: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(T_c_o), bool)
+        for a in range(0, len(T_c_o), chunk):
+            T = T_c_o[a : a + chunk]
+            p = points @ T[:, :3, :3].transpose(0, 2, 1) + T[:, None, :3, 3]  # (n, 200, 3), camera frame
+            front = p[..., 2] > 1e-3
+            uv = camera.project(p[front])
+            inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+            row = np.nonzero(front)[0]  # the pose of each projected point
+            n_inside = np.bincount(row[inside], minlength=len(T))
+            out[a : a + chunk] = (np.mean(front, axis=1) >= 0.5) & (n_inside >= 0.5 * len(points))
+        return out
 
     return in_view
 
@@ -483,6 +491,10 @@ def run_episode(
         "seen": np.zeros(n, bool),
     }
     T_c_o_true = [T_c_o0]  # per tick, to score an estimate against the truth at its own time
+    qd_max = scene.panda.limits.qd_max
+    # The poses of the current tick: read once after each physics step (nothing moves the arms between
+    # a step and the next tick's commands), not again by every user.
+    T_w_c, T_w_o = scene.T_w_c(), scene.T_w_o()
     v_cmd, watchdog, arm_limited, mode = np.zeros(6), False, False, hold.mode
     last_seq, ended, lost_at, n_events, done = 0, "duration", None, 0, 0
     with StopOnInterrupt() as stop:
@@ -497,7 +509,7 @@ def run_episode(
                 panda.deliver(t_us)
                 if k % ur_every == 0:
                     follower.command(t)
-                T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
+                T_w_e = scene.panda.T_w_e()
                 v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
                 est = tracker.latest(t_us)
                 # The start estimate (seq 0) reads lost before any update: a loss only without a start pose.
@@ -510,7 +522,7 @@ def run_episode(
                     v_cmd, watchdog, mode = cmd.v_c_w, cmd.watchdog, cmd.mode
                     arm_limited = cmd.pbvs is not None and cmd.pbvs.arm_limited
                 if k % panda_every == 0:
-                    if (watchdog or mode in ("holding", "searching")) and not np.any(v_cmd):
+                    if (watchdog or mode in ("holding", "searching")) and not v_cmd.any():
                         panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
                     else:
                         panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), cfg.panda_period_s)
@@ -525,24 +537,24 @@ def run_episode(
             ):
                 ended, lost_at = "tracking lost", t
                 break
-            rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = scene.T_w_o(), T_w_c, T_est
+            rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = T_w_o, T_w_c, T_est
             rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
             rec["watchdog"][k], rec["arm_limited"][k] = watchdog, arm_limited
-            rec["joint_speed_ratio"][k] = np.max(np.abs(scene.panda.qd) / scene.panda.limits.qd_max)
+            rec["joint_speed_ratio"][k] = (np.abs(scene.panda.qd) / qd_max).max()
             rec["lost"][k], rec["holding"][k] = lost, mode not in ("servoing", "coasting")
             rec["coasting"][k] = mode == "coasting"
-            rec["seen"][k] = disturb.seen(t) and in_view(T_c_o_true[k])
+            rec["seen"][k] = disturb.seen(t)  # and in view: after the loop, for all ticks at once
             done = k + 1
 
             scene.step(1)
             t_next = t_us + TICK_US
-            T_now = scene.T_c_o()
+            T_w_c, T_w_o = scene.T_w_c(), scene.T_w_o()
+            T_now = geometry.inv(T_w_c) @ T_w_o
             T_c_o_true.append(T_now)
             T_shown = disturb.source_pose(source, t_next, T_now)
             if arms is None:
-                events = source.events_until(t_next, T_shown, scene.T_w_c())
+                events = source.events_until(t_next, T_shown, T_w_c)
             else:
-                T_w_c = scene.T_w_c()
                 events = source.events_until(t_next, T_shown, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
             events = disturb.events(t_us, t_next, events)
             n_events += len(events)
@@ -557,6 +569,7 @@ def run_episode(
                 progress(100)
     if progress is not None and done % 100:
         progress(done % 100)
+    rec["seen"][:done] &= in_view(np.asarray(T_c_o_true[:done]).reshape(-1, 4, 4))
 
     result = EpisodeResult(
         config=cfg,
