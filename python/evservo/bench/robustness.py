@@ -17,9 +17,11 @@ Each scenario is a closed-loop episode (:func:`evservo.sim.episode.run_episode`,
   at rest and captures the desired pose once locked.
 
 Columns: the longest loss-detection delay, the longest re-lock time, the longest confident-wrong
-spell (wrong beyond 30 mm / 10° at Z = 0.6 m, scaled with depth, while not flagged lost) and the
-false-loss rate. Episodes are cached like the paper suite's (``episodes/<key>/config_hash``: a rerun
-with the same configuration and code reuses them), so an interrupted run (Ctrl-C) resumes.
+spell (wrong beyond 30 mm / 10° at Z = 0.6 m, scaled with depth, while not flagged lost), the
+false-loss rate, and the loop's reaction: time held (not servoing) and time coasted (following the
+object's predicted motion through a loss). Episodes are cached like the paper suite's
+(``episodes/<key>/config_hash``: a rerun with the same configuration and code reuses them), so an
+interrupted run (Ctrl-C) resumes.
 """
 
 from __future__ import annotations
