@@ -17,9 +17,11 @@ Each scenario is a closed-loop episode (:func:`evservo.sim.episode.run_episode`,
   at rest and captures the desired pose once locked.
 
 Columns: the longest loss-detection delay, the longest re-lock time, the longest confident-wrong
-spell (wrong beyond 30 mm / 10° at Z = 0.6 m, scaled with depth, while not flagged lost) and the
-false-loss rate. Episodes are cached like the paper suite's (``episodes/<key>/config_hash``: a rerun
-with the same configuration and code reuses them), so an interrupted run (Ctrl-C) resumes.
+spell (wrong beyond 30 mm / 10° at Z = 0.6 m, scaled with depth, while not flagged lost), the
+false-loss rate, and the loop's reaction: time held (not servoing) and time coasted (following the
+object's predicted motion through a loss). Episodes are cached like the paper suite's
+(``episodes/<key>/config_hash``: a rerun with the same configuration and code reuses them), so an
+interrupted run (Ctrl-C) resumes.
 """
 
 from __future__ import annotations
@@ -129,7 +131,7 @@ def _with_ms(cell: str) -> str:
 
 def _cells(s: dict) -> list[str]:
     if "failed" in s:
-        return ["–"] * 6
+        return ["–"] * 7
     loss = s["loss"]
     fl = loss["false_loss_rate"]
     return [
@@ -138,6 +140,7 @@ def _cells(s: dict) -> list[str]:
         _ms(loss["confident_wrong_ms"]),
         "–" if fl is None else f"{100 * fl:.1f} %",
         f"{loss['holding_s']:.2f}",
+        "–" if "coasting_s" not in loss else f"{loss['coasting_s']:.2f}",
         f"{s['gt_track_pos_rms_mm']:.0f}",
     ]
 
@@ -149,7 +152,7 @@ def _line(row: dict) -> str:
     c = _cells(s)
     return (
         f"{row['key']}: detection {_with_ms(c[0])}, re-lock {_with_ms(c[1])}, confident-wrong {_with_ms(c[2])}, "
-        f"false loss {c[3]}, held {c[4]} s"
+        f"false loss {c[3]}, held {c[4]} s, coasted {c[5]} s"
     )
 
 
@@ -168,11 +171,12 @@ def report(result: dict) -> str:
         "detection = longest delay from a pose turning wrong to `lost`; re-lock = longest time from the object "
         "being seen again (or the start without a pose) to a right pose not flagged lost; confident-wrong = "
         "longest spell wrong and not flagged lost. False loss: share of right poses of a visible object flagged "
-        "lost. Held: time the loop did not servo (holding, searching or ramping back in).",
+        "lost. Held: time the loop did not servo (holding, searching or ramping back in). Coasted: time it "
+        "followed the object's predicted motion through a loss (at most 0.1 s after the newest trusted pose).",
         "",
         "| scenario | solver | detection ms | re-lock ms | longest confident-wrong ms | false loss | held s "
-        "| tracking RMS mm | episode |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---|",
+        "| coasted s | tracking RMS mm | episode |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for row in result["rows"]:
         s = row["summary"]

@@ -44,6 +44,9 @@ from evservo.control import saturation
 from evservo.control.pbvs import Pbvs, PbvsCommand
 
 Mode = Literal["searching", "servoing", "coasting", "holding", "resuming"]
+#: Default coast (s): how old the newest trusted pose may grow while the loop bridges a loss on the
+#: predicted object motion (issue 12: a wrong pose must not drive the arm longer than 0.1 s).
+COAST_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -84,7 +87,7 @@ class LossHold:
     then :meth:`update` every control period instead of ``Pbvs.update``.
     """
 
-    def __init__(self, pbvs: Pbvs, confirm_s: float = 0.02, ramp_s: float = 0.3, coast_s: float = 0.1) -> None:
+    def __init__(self, pbvs: Pbvs, confirm_s: float = 0.02, ramp_s: float = 0.3, coast_s: float = COAST_S) -> None:
         if not all(np.isfinite(x) and x >= 0 for x in (confirm_s, ramp_s, coast_s)):
             raise ValueError("confirm_s, ramp_s and coast_s must be finite and >= 0")
         self.pbvs = pbvs

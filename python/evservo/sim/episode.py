@@ -43,7 +43,7 @@ import numpy as np
 
 from evservo import _evcore, geometry, trajectories
 from evservo.control import Pbvs
-from evservo.control.hold import LossHold
+from evservo.control.hold import COAST_S, LossHold
 from evservo.geometry import pose_errors, rotation_from_first_rad
 from evservo.interrupt import INTERRUPTED, StopOnInterrupt
 from evservo.limits import CartesianLimits
@@ -156,7 +156,7 @@ class EpisodeConfig:
     start_lost: bool = False
     reacquire: bool = False
     end_on_loss: bool = True
-    coast_s: float = 0.1
+    coast_s: float = COAST_S
     false_losses: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
