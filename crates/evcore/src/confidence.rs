@@ -76,20 +76,17 @@ impl Evidence {
         0.5 * (excess(self.support, self.chance) + excess(self.support_tight, self.chance_tight))
     }
 
-    /// The stricter test for a pose found by a global search: [`Evidence::confidence`], scaled down
-    /// when the pose accounts for less than [`EXPLAINED_ENOUGH`] of the event mass around it. A
-    /// sweep over thousands of templates finds partial fits (a smaller, farther view sitting on one
-    /// corner of the object's edges) that a continuously tracked pose never jumps to. Not used
-    /// while tracking: with the camera moving, background clutter rightly stays unexplained. (The
-    /// plain support − chance used before could not reach the acceptance level on a textured
-    /// object: its printed edges raise the chance level around it to 0.3, and the true pose of the
-    /// box scored 0.59–0.65 against the 0.7 needed, where its 2 px test alone scores
-    /// (0.92 − 0.28)/(1 − 0.28) = 0.89 as a share of the headroom.)
+    /// The stricter test for a pose found by a global search: support in excess of chance (the
+    /// plain difference, which a sparse full-image field makes hard to earn), scaled down when the
+    /// pose accounts for less than [`EXPLAINED_ENOUGH`] of the event mass around it. A sweep over
+    /// thousands of templates finds partial fits (a smaller, farther view sitting on one corner of
+    /// the object's edges) that a continuously tracked pose never jumps to. Not used while
+    /// tracking: with the camera moving, background clutter rightly stays unexplained.
     pub fn acquisition_confidence(&self) -> f32 {
         if self.visible < MIN_VISIBLE {
             return 0.0;
         }
-        self.confidence() * (self.explained / EXPLAINED_ENOUGH).min(1.0)
+        (self.support - self.chance).clamp(0.0, 1.0) * (self.explained / EXPLAINED_ENOUGH).min(1.0)
     }
 }
 
