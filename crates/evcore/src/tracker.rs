@@ -1768,6 +1768,35 @@ mod tests {
     }
 
     #[test]
+    fn after_a_gap_in_the_events_the_pose_follows_the_new_ones_not_the_old_edges() {
+        // Locked on the square; then no events at all for 60 ms, while the square moves 12 mm
+        // (about 29 px) sideways; then its events resume there. The front-end still holds the old
+        // outline, which would keep the pose where the square was.
+        let (mut core, pts, pose) = core(IngestLimit::Off);
+        for k in 0..10 {
+            let ev = outline_events(core.camera(), &pts, &pose, k * 1000, 400);
+            core.update(ev.as_slice()).unwrap();
+        }
+        assert!(!core.latest().lost);
+        let moved = Pose::from_parts(
+            Translation3::new(0.012, 0.0, 0.6),
+            UnitQuaternion::identity(),
+        );
+        let mut est = core.latest();
+        for k in 70..75 {
+            let ev = outline_events(core.camera(), &pts, &moved, k * 1000, 400);
+            est = core.update(ev.as_slice()).unwrap();
+        }
+        // Sideways (what the image pins down) to 0.5 mm; a flat square's depth only to a few mm.
+        let (dt, _) = crate::se3::distance(&est.pose, &moved);
+        let dx = (est.pose.translation.x - 0.012).abs();
+        assert!(
+            dx < 5e-4 && dt < 0.003 && !est.lost,
+            "{dx} m sideways, {dt} m off after 5 ms of events: {est:?}"
+        );
+    }
+
+    #[test]
     fn absurd_time_is_refused_and_the_time_line_can_restart() {
         let (mut core, pts, pose) = core(IngestLimit::Off);
         let cam = *core.camera();
