@@ -135,6 +135,11 @@ def test_the_rows_issue_14_is_about_run_first():
     assert all(cfg.trajectory == "trans-rot" and cfg.distance_m == 0.6 and cfg.feedforward for _, cfg in order[:3])
     ff_rows = {key for sec, key, _ in rows if sec == "feedforward"}
     assert {key for key, _ in order[: len(ff_rows)]} == ff_rows
+    # Then the speed sweep, EDFT⁺ fastest first: where the arm or the tracker gives out.
+    sweep_rows = {key for sec, key, _ in rows if sec == "sweep"} - ff_rows  # some are feed-forward rows too
+    sweep = order[len(ff_rows) : len(ff_rows) + len(sweep_rows)]
+    assert {key for key, _ in sweep} == sweep_rows
+    assert [(c.tracker, c.speed_mps) for _, c in sweep[:2]] == [("edft+", 1.7), ("edft+", 1.45)]
 
 
 def test_ctrl_c_cancels_the_clusters_tasks(cluster):
