@@ -91,6 +91,9 @@ class Estimate:
     n_events: int
     confidence: float
     lost: bool
+    pushed_ns: int
+    published_ns: int
+    latency_s: float | None
 
 @final
 class Tracker:

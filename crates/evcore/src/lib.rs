@@ -7,6 +7,7 @@
 //! [`sim`] is the event-camera simulator and [`io`] decodes recorded event streams.
 
 pub mod camera;
+pub mod clock;
 pub mod confidence;
 pub mod error;
 pub mod event;

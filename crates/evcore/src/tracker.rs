@@ -30,9 +30,10 @@ use crate::event::{validate_events, EventRecords};
 use crate::field::{DistanceField, FieldParams};
 use crate::freshness::{max_age_us, MotionMemory, Recency};
 use crate::image::Roi;
+use crate::se3::unit_twist;
 use crate::se3::Pose;
-use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32, ViewMask};
-use crate::solve::lm::{lm_pyramid, LmParams};
+use crate::solve::cost::{apply_increment, centroid, cost_stats, Pinhole, Rigid32, ViewMask};
+use crate::solve::lm::{lm_pyramid, LmParams, LmReport};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
 use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
@@ -170,6 +171,20 @@ pub struct Estimate {
     /// The pose is not to be trusted: before the first update confirms it, once the confidence
     /// fell below `lost_below` until it is back above `relock_above`, or the model is out of view.
     pub lost: bool,
+    /// When the batch holding the newest event behind this estimate (`t_us`) was handed to
+    /// ingest ([`crate::clock::now_ns`], ns; 0 before any event).
+    pub pushed_ns: u64,
+    /// When this estimate was published ([`crate::clock::now_ns`], ns). `published_ns −
+    /// pushed_ns` is the event-to-pose latency of its newest event, measured where it happens,
+    /// whoever reads the estimate and however late.
+    pub published_ns: u64,
+}
+
+impl Estimate {
+    /// Event-to-pose latency of the newest event behind this estimate (ns; None before any event).
+    pub fn latency_ns(&self) -> Option<u64> {
+        (self.pushed_ns != 0).then(|| self.published_ns.saturating_sub(self.pushed_ns))
+    }
 }
 
 /// Per-kind step counts and time spent (wall clock, seconds), and what happened to the events.
@@ -198,6 +213,19 @@ const VIEW_MARGIN_PX: f64 = 2.0;
 /// How long (event time, µs) a given pose may read lost before the tracker searches for the
 /// object instead (with a template bank): a start pose that never locks is taken to be wrong.
 const UNCONFIRMED_US: i64 = 100_000;
+
+/// A stretch of event time this long (µs) without a single event is a dropout (sensor, link or a
+/// thinning producer), not a quiet scene: the sensor's background activity alone fires every few
+/// µs. Whatever the front-end held before it shows where things were, not where they are.
+pub const EVENT_GAP_US: i64 = 20_000;
+/// For this long (µs) after events resume from a gap, the solver sees only pixels whose block has
+/// fired since: the pre-gap edges would hold the pose where the object was.
+const AFTER_GAP_US: i64 = 100_000;
+
+/// While lost with a template bank, a global pass runs at most this often (event time, µs); the
+/// steps in between keep tracking locally, so a pose that is right again is trusted again at once
+/// (the global pass alone only accepts a pose it found itself).
+const GLOBAL_PASS_EVERY_US: i64 = 10_000;
 
 /// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
 const MIN_VISIBLE_POINTS: usize = 6;
@@ -245,10 +273,13 @@ fn hold_axes(prior: &Pose, new: Pose, axes: &[(Vector3<f64>, Vector3<f64>)]) -> 
     out
 }
 
-/// A lock-free single-writer cell holding the newest estimate (a seqlock over 16 words).
+/// Words of an encoded [`Estimate`].
+const ESTIMATE_WORDS: usize = 18;
+
+/// A lock-free single-writer cell holding the newest estimate (a seqlock over its words).
 pub struct EstimateCell {
     version: AtomicU64,
-    words: [AtomicU64; 16],
+    words: [AtomicU64; ESTIMATE_WORDS],
 }
 
 impl EstimateCell {
@@ -261,7 +292,7 @@ impl EstimateCell {
         cell
     }
 
-    fn encode(e: &Estimate) -> [u64; 16] {
+    fn encode(e: &Estimate) -> [u64; ESTIMATE_WORDS] {
         let t = e.pose.translation.vector;
         let q = e.pose.rotation.coords;
         [
@@ -281,10 +312,12 @@ impl EstimateCell {
             u64::from(e.lost),
             u64::from(e.visible_fraction.to_bits()),
             u64::from(e.confidence.to_bits()),
+            e.pushed_ns,
+            e.published_ns,
         ]
     }
 
-    fn decode(w: &[u64; 16]) -> Estimate {
+    fn decode(w: &[u64; ESTIMATE_WORDS]) -> Estimate {
         let f = f64::from_bits;
         let q = UnitQuaternion::new_unchecked(Quaternion::new(f(w[6]), f(w[3]), f(w[4]), f(w[5])));
         Estimate {
@@ -302,6 +335,8 @@ impl EstimateCell {
             lost: w[13] != 0,
             visible_fraction: f32::from_bits(w[14] as u32),
             confidence: f32::from_bits(w[15] as u32),
+            pushed_ns: w[16],
+            published_ns: w[17],
         }
     }
 
@@ -324,7 +359,8 @@ impl EstimateCell {
                 std::hint::spin_loop();
                 continue;
             }
-            let words: [u64; 16] = std::array::from_fn(|i| self.words[i].load(Ordering::Relaxed));
+            let words: [u64; ESTIMATE_WORDS] =
+                std::array::from_fn(|i| self.words[i].load(Ordering::Relaxed));
             fence(Ordering::Acquire);
             if self.version.load(Ordering::Relaxed) == v1 {
                 return Self::decode(&words);
@@ -333,12 +369,62 @@ impl EstimateCell {
     }
 }
 
+/// The newest accepted batch: its last event time and when it was pushed, read as one pair (a
+/// seqlock; the ingest half is its only writer).
+struct NewestBatch {
+    version: AtomicU64,
+    /// Event time (µs); `i64::MIN` before any batch.
+    t_us: AtomicI64,
+    /// [`crate::clock::now_ns`] when the batch was handed to ingest.
+    pushed_ns: AtomicU64,
+}
+
+impl NewestBatch {
+    fn new() -> Self {
+        Self {
+            version: AtomicU64::new(0),
+            t_us: AtomicI64::new(i64::MIN),
+            pushed_ns: AtomicU64::new(0),
+        }
+    }
+
+    /// Only the ingest half writes. Release: a reader that sees the pair also sees the events
+    /// ingested before it.
+    fn set(&self, t_us: i64, pushed_ns: u64) {
+        let v = self.version.load(Ordering::Relaxed);
+        self.version.store(v.wrapping_add(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        self.t_us.store(t_us, Ordering::Relaxed);
+        self.pushed_ns.store(pushed_ns, Ordering::Relaxed);
+        self.version.store(v.wrapping_add(2), Ordering::Release);
+    }
+
+    /// (event time µs, push stamp ns) of the newest batch; None before any.
+    fn get(&self) -> Option<(i64, u64)> {
+        loop {
+            let v1 = self.version.load(Ordering::Acquire);
+            if v1 % 2 == 1 {
+                std::hint::spin_loop();
+                continue;
+            }
+            let t = self.t_us.load(Ordering::Relaxed);
+            let pushed = self.pushed_ns.load(Ordering::Relaxed);
+            fence(Ordering::Acquire);
+            if self.version.load(Ordering::Relaxed) == v1 {
+                return (t != i64::MIN).then_some((t, pushed));
+            }
+        }
+    }
+}
+
 /// What both halves of a tracker publish, readable from any thread without locks: the newest
-/// estimate, the newest ingested event time and live counters.
+/// estimate, the newest ingested batch and live counters.
 pub struct TrackerOutput {
     latest: EstimateCell,
-    /// Newest event time of the last accepted batch (µs); `i64::MIN` before any.
-    newest_t_us: AtomicI64,
+    newest: NewestBatch,
+    /// Time (µs) of the first event after the last gap of at least [`EVENT_GAP_US`] in the
+    /// stream; `i64::MIN` if none.
+    resumed_at_us: AtomicI64,
     /// Accepted non-empty batches; the solver compares it to see whether anything new arrived.
     batches: AtomicU64,
     offered: AtomicU64,
@@ -358,7 +444,8 @@ impl TrackerOutput {
     fn new(initial: &Estimate) -> Self {
         Self {
             latest: EstimateCell::new(initial),
-            newest_t_us: AtomicI64::new(i64::MIN),
+            newest: NewestBatch::new(),
+            resumed_at_us: AtomicI64::new(i64::MIN),
             batches: AtomicU64::new(0),
             offered: AtomicU64::new(0),
             ingested: AtomicU64::new(0),
@@ -396,9 +483,9 @@ impl TrackerOutput {
         }
     }
 
-    fn newest_t_us(&self) -> Option<i64> {
-        let t = self.newest_t_us.load(Ordering::Acquire);
-        (t != i64::MIN).then_some(t)
+    /// (event time µs, push stamp ns) of the newest accepted batch; None before any.
+    fn newest(&self) -> Option<(i64, u64)> {
+        self.newest.get()
     }
 }
 
@@ -516,6 +603,7 @@ impl Ingest {
     /// Validate `events` and insert them (all of them when `thin` is false, else the fraction the
     /// ingest limit allows). A rejected batch changes nothing.
     pub fn push<E: EventRecords + ?Sized>(&mut self, events: &E, thin: bool) -> Result<()> {
+        let pushed_ns = crate::clock::now_ns();
         let started = Instant::now();
         validate_events(events, self.width, self.height, self.last_t_us)?;
         let n = events.n_events();
@@ -523,6 +611,12 @@ impl Ingest {
             return Ok(());
         }
         let (first_t, last_t) = (events.t_at(0), events.t_at(n - 1));
+        if self
+            .last_t_us
+            .is_some_and(|prev| first_t - prev >= EVENT_GAP_US)
+        {
+            self.out.resumed_at_us.store(first_t, Ordering::Release);
+        }
         let validated = Instant::now();
         let keep = if thin {
             self.thinning.offer(n, first_t, last_t, self.last_t_us)
@@ -578,7 +672,7 @@ impl Ingest {
         self.out.offered.fetch_add(n as u64, Ordering::Relaxed);
         self.out.ingested.fetch_add(kept as u64, Ordering::Relaxed);
         // Release: a solver that sees this time (or batch count) also sees the events in its mask.
-        self.out.newest_t_us.store(last_t, Ordering::Release);
+        self.out.newest.set(last_t, pushed_ns);
         self.out.batches.fetch_add(1, Ordering::Release);
         Ok(())
     }
@@ -592,7 +686,8 @@ impl Ingest {
         if let Some(f) = &mut self.flicker {
             f.reset();
         }
-        self.out.newest_t_us.store(i64::MIN, Ordering::Release);
+        self.out.newest.set(i64::MIN, 0);
+        self.out.resumed_at_us.store(i64::MIN, Ordering::Release);
     }
 }
 
@@ -608,6 +703,8 @@ pub struct Solver {
     view: ViewMask,
     /// The points visible at the current step (reused buffer).
     visible: Vec<[f32; 3]>,
+    /// The last LM step of this cycle: its held directions are held in the search steps too.
+    last_lm: Option<LmReport>,
     schedule: Schedule,
     config: TrackerConfig,
     last: Estimate,
@@ -630,6 +727,11 @@ pub struct Solver {
     points_dir_o: Option<Vector3<f64>>,
     /// What the events said at the last tracked pose (diagnostics).
     evidence: Evidence,
+    /// A pose was given or trusted once: while lost, local steps track on from it between the
+    /// global passes.
+    had_pose: bool,
+    /// Event time (µs) of the last global pass.
+    last_global_us: Option<i64>,
 }
 
 fn check_pose(pose: &Pose) -> Result<()> {
@@ -663,7 +765,7 @@ impl Solver {
         let schedule = Schedule::new(config.solver, config.n_search)?;
         let pivot_o = centroid(&points_o);
         let view = ViewMask::new(&sensor, VIEW_MARGIN_PX);
-        let solver = Self {
+        let mut solver = Self {
             sensor,
             rect,
             reader,
@@ -673,6 +775,7 @@ impl Solver {
             pins,
             view,
             visible: Vec::new(),
+            last_lm: None,
             schedule,
             last: Estimate {
                 pose: t_c_o,
@@ -685,6 +788,8 @@ impl Solver {
                 n_events: 0,
                 confidence: 0.0,
                 lost: true,
+                pushed_ns: 0,
+                published_ns: 0,
             },
             config,
             mask: Vec::new(),
@@ -697,13 +802,24 @@ impl Solver {
             bank: None,
             points_dir_o: None,
             evidence: Evidence::default(),
+            had_pose: true,
+            last_global_us: None,
         };
         solver.publish();
         Ok(solver)
     }
 
-    fn publish(&self) {
+    /// Stamp the estimate with the time and hand it to readers.
+    fn publish(&mut self) {
+        self.last.published_ns = crate::clock::now_ns();
         self.out.latest.publish(&self.last);
+    }
+
+    /// (event time µs, push stamp ns) of the newest batch, or the last estimate's before any.
+    fn newest(&self) -> (i64, u64) {
+        self.out
+            .newest()
+            .unwrap_or((self.last.t_us, self.last.pushed_ns))
     }
 
     /// Region of the rectified image around the model projected at the current pose.
@@ -721,10 +837,12 @@ impl Solver {
     fn reset_pose(&mut self, t_c_o: Pose) -> Result<()> {
         check_pose(&t_c_o)?;
         self.last.pose = t_c_o;
+        self.last_lm = None;
         // Not locked until an update confirms the new pose against the events; but a given pose
         // is tracked from, not searched for.
         self.last.lost = true;
         self.searching = false;
+        self.had_pose = true;
         self.unconfirmed_since_us = None;
         self.motion.reset();
         self.schedule.restart();
@@ -735,23 +853,31 @@ impl Solver {
     /// One update: rebuild the field from the current active set and run the next scheduled step
     /// (or, while lost with a template bank, one global search).
     fn step(&mut self) -> Estimate {
+        // Read before the mask: every event up to this time is in what the mask shows.
+        let newest = self.newest();
+        let t_us = newest.0;
         if self.searching {
             if let Some(bank) = self.bank.clone() {
-                return self.reacquire(&bank);
+                // Without a pose ever trusted there is nothing to track locally.
+                let due = self
+                    .last_global_us
+                    .is_none_or(|t| t_us - t >= GLOBAL_PASS_EVERY_US || t_us < t);
+                if due || !self.had_pose {
+                    self.last_global_us = Some(t_us);
+                    return self.reacquire(&bank);
+                }
             }
         }
         let kind = self.schedule.next_step();
         let started = Instant::now();
         let pose = self.last.pose;
-        // Read before the mask: every event up to this time is in what the mask shows.
-        let t_us = self.out.newest_t_us().unwrap_or(self.last.t_us);
         let n_events = self.out.ingested.load(Ordering::Relaxed);
         let margin = match kind {
             StepKind::Lm => self.config.roi_margin_px,
             StepKind::Search => self.config.search_roi_margin_px,
         };
         let Some(roi) = self.roi(margin) else {
-            self.lose(t_us, n_events, 1.0);
+            self.lose(newest, n_events, 1.0);
             return self.last;
         };
         let mut visible = std::mem::take(&mut self.visible);
@@ -764,7 +890,7 @@ impl Solver {
         let visible_fraction = visible.len() as f32 / self.points.len() as f32;
         if visible.len() < MIN_VISIBLE_POINTS {
             self.visible = visible;
-            self.lose(t_us, n_events, visible_fraction);
+            self.lose(newest, n_events, visible_fraction);
             return self.last;
         }
         let whole = visible_fraction >= FULL_VIEW_FRACTION
@@ -782,6 +908,10 @@ impl Solver {
         };
         self.mask.resize(roi.area(), 0);
         self.reader.fill_mask(roi, &mut self.mask);
+        let resumed = self.out.resumed_at_us.load(Ordering::Acquire);
+        if resumed != i64::MIN && (0..AFTER_GAP_US).contains(&(t_us - resumed)) {
+            self.recency.keep_fresh(&mut self.mask, roi, resumed);
+        }
         let built = self.field.build(&self.mask, roi, n_levels);
         let new_pose = match (&built, kind) {
             (Err(_), _) => pose,
@@ -790,19 +920,30 @@ impl Solver {
                     .rev()
                     .map(|l| (self.field.level(l), self.pins[l as usize]))
                     .collect();
-                lm_pyramid(&levels, pose, &visible, &self.pivot_o, &self.config.lm).pose
+                let report = lm_pyramid(&levels, pose, &visible, &self.pivot_o, &self.config.lm);
+                self.last_lm = Some(report);
+                report.pose
             }
             (Ok(()), StepKind::Search) => {
                 let deltas = axis_steps(&self.pins[0], &pose, &visible, &self.pivot_o, 8);
-                search_step(
+                let out = search_step(
                     self.field.level(0),
                     &self.pins[0],
                     &pose,
                     &visible,
                     &self.pivot_o,
                     &deltas,
-                )
-                .pose
+                );
+                match &self.last_lm {
+                    Some(lm) if lm.n_held > 0 && out.candidate > 0 => {
+                        let k = (out.candidate - 1) / 2;
+                        let sign = if out.candidate % 2 == 1 { 1.0 } else { -1.0 };
+                        let xi = lm.without_held(&(unit_twist(k) * (sign * deltas[k])));
+                        let pivot_c = pose * Point3::from(self.pivot_o);
+                        apply_increment(&pose, &xi, &pivot_c.coords)
+                    }
+                    _ => out.pose,
+                }
             }
         };
         let new_pose = hold_axes(&pose, new_pose, &self.config.held_axes_o);
@@ -855,6 +996,8 @@ impl Solver {
             n_events,
             confidence,
             lost,
+            pushed_ns: newest.1,
+            published_ns: 0,
         };
         self.publish();
         let ns = started.elapsed().as_nanos() as u64;
@@ -871,9 +1014,10 @@ impl Solver {
 impl Solver {
     /// Publish an update without a pose change: the object is out of view (or nothing of it
     /// projects), so the pose cannot be trusted and is searched for.
-    fn lose(&mut self, t_us: i64, n_events: u64, visible_fraction: f32) {
+    fn lose(&mut self, (t_us, pushed_ns): (i64, u64), n_events: u64, visible_fraction: f32) {
         self.last.seq += 1;
         self.last.t_us = t_us;
+        self.last.pushed_ns = pushed_ns;
         self.last.n_events = n_events;
         self.last.visible_fraction = visible_fraction;
         self.last.confidence = 0.0;
@@ -952,7 +1096,7 @@ impl Solver {
     /// confident is taken if it passes `reacquire_above`; otherwise the tracker stays lost.
     fn reacquire(&mut self, bank: &TemplateBank) -> Estimate {
         let started = Instant::now();
-        let t_us = self.out.newest_t_us().unwrap_or(self.last.t_us);
+        let (t_us, pushed_ns) = self.newest();
         let n_events = self.out.ingested.load(Ordering::Relaxed);
         let full = Roi::full(self.rect.width, self.rect.height);
         let levels = self.config.field.levels;
@@ -992,6 +1136,7 @@ impl Solver {
         }
         self.last.seq += 1;
         self.last.t_us = t_us;
+        self.last.pushed_ns = pushed_ns;
         self.last.n_events = n_events;
         self.last.step = StepKind::Lm;
         match best {
@@ -1004,6 +1149,7 @@ impl Solver {
                 self.last.lost = false;
                 self.last.visible_fraction = 1.0;
                 self.searching = false;
+                self.had_pose = true;
                 self.motion.reset();
                 self.schedule.restart();
             }
@@ -1025,6 +1171,7 @@ impl Solver {
         self.points.clone_from(&bank.views[v].points_o);
         self.pivot_o = centroid(&self.points);
         self.points_dir_o = Some(bank.views[v].dir_o);
+        self.last_lm = None;
     }
 
     /// Swap S* for the bank's view nearest to `pose` once the object has turned more than ¾ of the
@@ -1084,6 +1231,8 @@ impl TrackerCore {
             n_events: 0,
             confidence: 0.0,
             lost: true,
+            pushed_ns: 0,
+            published_ns: 0,
         };
         let out = Arc::new(TrackerOutput::new(&placeholder));
         let recency = Arc::new(Recency::new(&camera, &camera.rectified()));
@@ -1119,6 +1268,7 @@ impl TrackerCore {
         core.solver.points_dir_o = Some(view.dir_o);
         core.solver.bank = Some(Arc::new(bank));
         core.solver.searching = true;
+        core.solver.had_pose = false;
         Ok(core)
     }
 
@@ -1129,6 +1279,7 @@ impl TrackerCore {
         s.last.lost = true;
         s.last.confidence = 0.0;
         s.searching = true;
+        s.had_pose = false;
         s.publish();
     }
 
@@ -1567,6 +1718,56 @@ mod tests {
     }
 
     #[test]
+    fn latency_runs_from_the_push_of_the_newest_batch_to_the_publication() {
+        let (mut core, pts, pose) = core(IngestLimit::Off);
+        let cam = *core.camera();
+        assert_eq!(core.latest().latency_ns(), None, "no event yet");
+        let before = crate::clock::now_ns();
+        core.ingest(outline_events(&cam, &pts, &pose, 0, 2000).as_slice())
+            .unwrap();
+        thread::sleep(Duration::from_millis(3));
+        let second = crate::clock::now_ns();
+        core.ingest(outline_events(&cam, &pts, &pose, 1000, 2000).as_slice())
+            .unwrap();
+        thread::sleep(Duration::from_millis(5));
+        let est = core.step();
+        let after = crate::clock::now_ns();
+        // The stamp is the second batch's (it holds the newest event), not the first's.
+        assert_eq!(est.t_us, 1199);
+        assert!(est.pushed_ns >= second && est.pushed_ns <= est.published_ns);
+        assert!(est.pushed_ns > before + 3_000_000, "{est:?}");
+        assert!(est.published_ns <= after);
+        let latency = est.latency_ns().unwrap();
+        assert!((5_000_000..after - second).contains(&latency), "{latency}");
+        assert_eq!(core.output().latest(), est);
+        // A later step on the same events keeps the push stamp: its latency only grows.
+        let again = core.step();
+        assert_eq!(again.pushed_ns, est.pushed_ns);
+        assert!(again.published_ns >= est.published_ns);
+        core.reset_events();
+        assert_eq!(core.output().newest(), None);
+    }
+
+    #[test]
+    fn newest_batch_pairs_are_never_torn() {
+        let cell = Arc::new(NewestBatch::new());
+        let reader = {
+            let cell = Arc::clone(&cell);
+            thread::spawn(move || {
+                for _ in 0..200_000 {
+                    if let Some((t, pushed)) = cell.get() {
+                        assert_eq!(pushed, t as u64 * 3);
+                    }
+                }
+            })
+        };
+        for t in 1..200_000i64 {
+            cell.set(t, t as u64 * 3);
+        }
+        reader.join().unwrap();
+    }
+
+    #[test]
     fn absurd_time_is_refused_and_the_time_line_can_restart() {
         let (mut core, pts, pose) = core(IngestLimit::Off);
         let cam = *core.camera();
@@ -1699,6 +1900,8 @@ mod tests {
             n_events: seq * 3,
             confidence: 0.25,
             lost: false,
+            pushed_ns: seq * 7,
+            published_ns: seq * 11,
         };
         let cell = Arc::new(EstimateCell::new(&mk(0)));
         assert_eq!(cell.read(), mk(0));
@@ -1711,6 +1914,7 @@ mod tests {
                     // Never torn: every field belongs to the same publication.
                     assert_eq!(e.t_us, e.seq as i64 * 10);
                     assert_eq!(e.n_events, e.seq * 3);
+                    assert_eq!((e.pushed_ns, e.published_ns), (e.seq * 7, e.seq * 11));
                     assert!(e.seq >= last);
                     last = e.seq;
                 }

@@ -76,6 +76,23 @@ impl PyEstimate {
     fn lost(&self) -> bool {
         self.inner.lost
     }
+    /// When the batch holding the newest event (`t_us`) was pushed (ns on the tracker's
+    /// monotonic clock; 0 before any event).
+    #[getter]
+    fn pushed_ns(&self) -> u64 {
+        self.inner.pushed_ns
+    }
+    /// When this estimate was published (ns, the same clock as `pushed_ns`).
+    #[getter]
+    fn published_ns(&self) -> u64 {
+        self.inner.published_ns
+    }
+    /// Event-to-pose latency of the newest event: `published_ns − pushed_ns` in seconds (None
+    /// before any event).
+    #[getter]
+    fn latency_s(&self) -> Option<f64> {
+        self.inner.latency_ns().map(|ns| ns as f64 * 1e-9)
+    }
     fn __repr__(&self) -> String {
         let t = self.inner.pose.translation.vector;
         format!(
