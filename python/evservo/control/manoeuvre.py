@@ -1,5 +1,6 @@
 """Detecting a manoeuvre of the target (an abrupt stop, start or reversal) from a motion filter's
-innovations, and widening the filter's bandwidth while it lasts.
+innovations, and widening the filter's bandwidth while it lasts (the filter then runs a
+constant-velocity model: :class:`~evservo.control.pose_filter.TwistEstimator`).
 
 A constant-acceleration filter's twist has no first-order delay on smooth motion, and that is why the
 camera no longer lags; the price is that after an abrupt change of velocity Δv its twist, integrated by
@@ -35,7 +36,7 @@ class Manoeuvre:
         window_s: float = 0.005,
         noise_tau_s: float = 1.0,
         ratio: float = 4.0,
-        boost: float = 5.0,
+        boost: float = 10.0,
         hold_s: float = 0.05,
         warmup_s: float = 0.2,
     ) -> None:

@@ -36,6 +36,10 @@ class TwistEstimator:
     ten times the bandwidth and a velocity noise that, through the lever arm of a rotation, swamps the
     feed-forward.
 
+    With a :class:`~evservo.control.manoeuvre.Manoeuvre` detector, while it reports an abrupt change of
+    the motion the filter runs as a constant-velocity (alpha–beta) filter at the widened bandwidth and
+    the acceleration state is dropped, then resumes the constant-acceleration model from there.
+
     The acceleration used outside (``accel_w``: m/s², rad/s²) is the filter's acceleration state
     through a first-order low-pass of time constant ``accel_tau_s`` (seconds; discretised exactly, so
     it too means the same at any pose rate): differentiating a pose twice needs that much smoothing.
@@ -81,13 +85,24 @@ class TwistEstimator:
         r = np.concatenate([T_w_o[:3, 3] - P[:3, 3], geometry.rotvec(T_w_o[:3, :3] @ P[:3, :3].T)])
         boost = 1.0 if self.manoeuvre is None else self.manoeuvre.update(dt, r)
         theta = np.exp(-2.0 * np.pi * self.bandwidth_hz * boost * dt)
-        alpha, beta, gamma = 1.0 - theta**3, 1.5 * (1.0 - theta) ** 2 * (1.0 + theta), (1.0 - theta) ** 3
+        if boost > 1.05:
+            # A manoeuvre: a constant-velocity (alpha–beta) model at the widened bandwidth, the acceleration
+            # state dropped. Widening the acceleration gain too (∝ boost³) would leave a large spurious
+            # acceleration behind that the normal bandwidth then takes long to forget.
+            alpha, beta, gamma = 1.0 - theta**2, (1.0 - theta) ** 2, 0.0
+            self._accel[:] = 0.0
+        else:
+            alpha, beta, gamma = 1.0 - theta**3, 1.5 * (1.0 - theta) ** 2 * (1.0 + theta), (1.0 - theta) ** 3
         T = np.eye(4)
         T[:3, 3] = P[:3, 3] + alpha * r[:3]
         T[:3, :3] = geometry.rotmat(alpha * r[3:]) @ P[:3, :3]
-        self.twist_w = self.twist_w + dt * self._accel + (beta / dt) * r
+        twist = self.twist_w + dt * self._accel + (beta / dt) * r
         self._accel = self._accel + (2.0 * gamma / dt**2) * r
-        self.accel_w += (1.0 - np.exp(-dt / self.accel_tau_s)) * (self._accel - self.accel_w)
+        # Outside, the acceleration is that of the estimated twist: the model's state, or while it has
+        # none (a manoeuvre) the twist's rate of change, which the feed-forward needs to follow it.
+        accel = self._accel if gamma > 0 else (twist - self.twist_w) / dt
+        self.twist_w = twist
+        self.accel_w += (1.0 - np.exp(-dt / self.accel_tau_s)) * (accel - self.accel_w)
         self.T_w_o, self.t_s = T, t_s
 
 
