@@ -135,6 +135,11 @@ def test_the_rows_issue_14_is_about_run_first():
     assert all(cfg.trajectory == "trans-rot" and cfg.distance_m == 0.6 and cfg.feedforward for _, cfg in order[:3])
     ff_rows = {key for sec, key, _ in rows if sec == "feedforward"}
     assert {key for key, _ in order[: len(ff_rows)]} == ff_rows
+    # Then the speed sweep, EDFT⁺ fastest first: where the arm or the tracker gives out.
+    sweep_rows = {key for sec, key, _ in rows if sec == "sweep"} - ff_rows  # some are feed-forward rows too
+    sweep = order[len(ff_rows) : len(ff_rows) + len(sweep_rows)]
+    assert {key for key, _ in sweep} == sweep_rows
+    assert [(c.tracker, c.speed_mps) for _, c in sweep[:2]] == [("edft+", 1.7), ("edft+", 1.45)]
 
 
 def test_ctrl_c_cancels_the_clusters_tasks(cluster):
@@ -177,3 +182,11 @@ def test_jobs_run_on_a_local_cluster_where_a_dying_worker_is_reported_not_waited
         assert run_tasks(address, pow, {"a": (4, 2), "b": (2, 10)}, results.__setitem__) == {}
     assert results == {"a": 16, "b": 1024}
     assert time.monotonic() - t0 < 120
+
+
+def test_the_sweep_says_whether_the_arm_or_the_tracker_gave_out():
+    held = {"completed": True, "lost_at_s": None, "joint_speed_max_ratio": 1.0, "gave_out": None}
+    assert "the arm gave out" in paper._sweep_verdict(held)
+    assert "neither" in paper._sweep_verdict({**held, "joint_speed_max_ratio": 0.6})
+    lost = {**held, "completed": False, "lost_at_s": 1.4, "gave_out": "tracker"}
+    assert paper._sweep_verdict(lost) == "lost at 1.40 s, the tracker gave out"

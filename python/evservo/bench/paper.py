@@ -185,11 +185,14 @@ def _load_summary(path: Path) -> dict:
 
 def _priority(rows: list[tuple[str, str, EpisodeConfig]], key: str, cfg: EpisodeConfig) -> tuple:
     """Run order: our controller's episodes first, and among them the hardest rows (Z = 0.6 m
-    ``trans-rot``, then the translation rows nearest the paper's 0.3 m/s), so that a run cut short has
-    those; a rerun reuses what it finished. Plan order otherwise (the sort is stable)."""
-    first = {"feedforward": 0, "predictor": 1, "sweep": 2}
+    ``trans-rot``, then the translation rows nearest the paper's 0.3 m/s), then the speed sweep
+    (EDFT⁺ first, fastest first: where the arm or the tracker gives out), then the predictor rows, so
+    that a run cut short has those; a rerun reuses what it finished. Plan order otherwise (the sort is
+    stable)."""
+    first = {"feedforward": 0, "sweep": 1, "predictor": 2}
     rank = min(first.get(sec, len(first)) for sec, k, _ in rows if k == key)
-    return rank, cfg.trajectory != "trans-rot", cfg.distance_m, abs(cfg.speed_mps - 0.3)
+    speed = -cfg.speed_mps if rank == first["sweep"] else abs(cfg.speed_mps - 0.3)
+    return rank, cfg.tracker != "edft+", cfg.trajectory != "trans-rot", cfg.distance_m, speed
 
 
 def run_all(
@@ -252,6 +255,15 @@ def _fmt(values: list[float]) -> str:
     if len(values) == 1:
         return f"{values[0]:.2f}"
     return f"{np.mean(values):.2f} ± {np.std(values, ddof=1):.2f}"
+
+
+def _sweep_verdict(s: dict) -> str:
+    """Which gave out in a sweep episode: the tracker (tracking lost for want of poses or too fast an
+    image), the arm (a Panda joint at its velocity limit: the camera trails, tracking may hold)."""
+    arm = s.get("joint_speed_max_ratio", 0.0) >= 0.99
+    if not s["completed"]:
+        return f"lost at {s['lost_at_s']:.2f} s, the {s.get('gave_out')} gave out"
+    return "tracking held; the arm gave out (a joint at its velocity limit)" if arm else "held; neither gave out"
 
 
 def _false_loss_counts(summaries: list[dict]) -> tuple[int, int]:
@@ -373,7 +385,7 @@ def report(
             ((sec, k, c, s) for sec, k, c, s in episodes if sec == "sweep" and c.tracker == trk),
             key=lambda e: e[2].speed_mps,
         ):
-            verdict = "held" if s["completed"] else f"lost at {s['lost_at_s']:.2f} s, {s.get('gave_out')} gave out"
+            verdict = _sweep_verdict(s)
             lines.append(
                 f"  - {cfg.speed_mps:g} m/s: {verdict}; servo {s['servo_pos_rms_mm']:.1f} mm, lag {s['lag_s']:.3f} s, "
                 f"Panda's fastest joint at {s.get('joint_speed_max_ratio', float('nan')):.2f} of its limit, "

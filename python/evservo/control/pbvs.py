@@ -24,6 +24,7 @@ import numpy as np
 
 from evservo import geometry
 from evservo.control import law, saturation
+from evservo.control.manoeuvre import Manoeuvre
 from evservo.control.pose_filter import PoseFilter
 from evservo.limits import CartesianLimits
 
@@ -101,6 +102,12 @@ class Pbvs:
         command latency): the object and the camera (at its current twist) are predicted to then.
     predict_accel: with feed-forward, extrapolate the object across the pose's age and ``lookahead_s``
         at its estimated acceleration (constant-acceleration predictor) instead of at constant velocity.
+    manoeuvre: widen the motion estimator's bandwidth while its innovations show an abrupt change of
+        the target's velocity (:class:`~evservo.control.manoeuvre.Manoeuvre`): after a stop or a
+        reversal the feed-forward then runs past the target by a fifth as far.
+    ff_reach, ff_reach_tau_s: with feed-forward, scale the reference down where its RMS acceleration
+        over ``ff_reach_tau_s`` (s) exceeds ``ff_reach`` of the acceleration limits (see
+        :meth:`_reach_scale`); the rest is left to the error feedback.
     """
 
     def __init__(
@@ -121,6 +128,9 @@ class Pbvs:
         object_radius_m: float = 0.1,
         lookahead_s: float = 0.0,
         predict_accel: bool = False,
+        manoeuvre: bool = True,
+        ff_reach: float = 0.6,
+        ff_reach_tau_s: float = 0.3,
     ) -> None:
         if not (np.isfinite(k) and k > 0):
             raise ValueError("k must be finite and > 0")
@@ -132,7 +142,8 @@ class Pbvs:
             raise ValueError("object_radius_m must be > 0")
         if not (np.isfinite(lookahead_s) and lookahead_s >= 0):
             raise ValueError("lookahead_s must be finite and >= 0")
-        self.filter = PoseFilter(ema_alpha, stale_after_s, max_jump_m, max_jump_rad, ff_bandwidth_hz, ff_accel_tau_s)
+        self.filter = PoseFilter(ema_alpha, stale_after_s, max_jump_m, max_jump_rad, ff_bandwidth_hz, ff_accel_tau_s,
+                                 Manoeuvre() if manoeuvre else None)  # fmt: skip
         self.k = float(k)
         self.feedforward = feedforward
         self.period_s = float(period_s)
@@ -143,6 +154,8 @@ class Pbvs:
         self.object_radius_m = float(object_radius_m)
         self.lookahead_s = float(lookahead_s)
         self.predict_accel = predict_accel
+        self.ff_reach, self.ff_reach_tau_s = float(ff_reach), float(ff_reach_tau_s)
+        self._a_ref_ms, self._ms_t_s = np.zeros(2), None  # see _reach_scale
         self.T_c_o_des: np.ndarray | None = None
         self._running = False
 
@@ -158,6 +171,7 @@ class Pbvs:
         T_c_o = geometry.as_pose(T_c_o, "T_c_o")
         self.T_c_o_des = T_c_o.copy()
         self.filter.restart(T_w_c, T_c_o, t_s)
+        self._a_ref_ms, self._ms_t_s = np.zeros(2), None
         self._running = True
 
     def set_desired(self, T_c_o_des: np.ndarray) -> None:
@@ -212,6 +226,8 @@ class Pbvs:
             T_w_o, twist_o = f.object_at(t_s + self.lookahead_s, self.predict_accel)
             T_w_ctgt = law.camera_target(T_w_o, self.T_c_o_des)
             v_ref, a_ref = law.rigid_reference(T_w_o, T_w_ctgt, twist_o, f.motion.accel_w if self.ff_accel else None)
+            scale = self._reach_scale(a_ref, t_s)
+            v_ref, a_ref = scale * v_ref, scale * a_ref
             T_w_c_then = geometry.advance(T_w_c, v_c_w, self.lookahead_s)
         else:
             T_w_o, T_w_c_then = f.T_w_o, T_w_c
@@ -235,6 +251,22 @@ class Pbvs:
         e_c = np.concatenate([R.T @ e_w[:3], R.T @ e_w[3:]])
         state: State = "rejected" if reason else "ok"
         return PbvsCommand(v_cmd, a_cmd, e_c, state, reason, T_w_ctgt, v_ref, arm_limited=limited)
+
+    def _reach_scale(self, a_ref: np.ndarray, t_s: float) -> float:
+        """The factor (≤ 1) on the feed-forward that keeps its sustained acceleration within
+        ``ff_reach`` of the camera's acceleration limits: the mean square of the reference's linear and
+        angular accelerations over ``ff_reach_tau_s``, outside detected manoeuvres (a stop or a reversal
+        is a short spike that the limits merely round off). A target oscillating faster than the arm can
+        accelerate is then followed in phase with a smaller amplitude, not chased with a growing swing."""
+        m = self.filter.motion.manoeuvre
+        dt = 0.0 if self._ms_t_s is None else t_s - self._ms_t_s
+        self._ms_t_s = t_s
+        if m is None or m.factor < 1.01:
+            a2 = np.array([a_ref[:3] @ a_ref[:3], a_ref[3:] @ a_ref[3:]])
+            self._a_ref_ms += (1.0 - np.exp(-dt / self.ff_reach_tau_s)) * (a2 - self._a_ref_ms)
+        rms = np.sqrt(self._a_ref_ms)
+        limit = self.ff_reach * np.array([self.limits.max_lin_acc, self.limits.max_ang_acc])
+        return float(min(1.0, *(limit / np.maximum(rms, 1e-12))))
 
     def _brake(self, v: np.ndarray, state: State, reason: str) -> PbvsCommand:
         """Decelerate towards rest at the acceleration limit."""

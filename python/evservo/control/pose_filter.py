@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from evservo import geometry
+from evservo.control.manoeuvre import Manoeuvre
 
 
 class TwistEstimator:
@@ -35,16 +36,26 @@ class TwistEstimator:
     ten times the bandwidth and a velocity noise that, through the lever arm of a rotation, swamps the
     feed-forward.
 
+    With a :class:`~evservo.control.manoeuvre.Manoeuvre` detector, while it reports an abrupt change of
+    the motion the filter runs as a constant-velocity (alpha–beta) filter at the widened bandwidth and
+    the acceleration state is dropped, then resumes the constant-acceleration model from there.
+
     The acceleration used outside (``accel_w``: m/s², rad/s²) is the filter's acceleration state
     through a first-order low-pass of time constant ``accel_tau_s`` (seconds; discretised exactly, so
     it too means the same at any pose rate): differentiating a pose twice needs that much smoothing.
     """
 
-    def __init__(self, bandwidth_hz: float = 5.5, accel_tau_s: float = 0.05) -> None:
+    def __init__(
+        self,
+        bandwidth_hz: float = 5.5,
+        accel_tau_s: float = 0.05,
+        manoeuvre: Manoeuvre | None = None,
+    ) -> None:
         if not (bandwidth_hz > 0 and accel_tau_s > 0):
             raise ValueError("bandwidth_hz and accel_tau_s must be > 0")
         self.bandwidth_hz = float(bandwidth_hz)
         self.accel_tau_s = float(accel_tau_s)
+        self.manoeuvre = manoeuvre
         self.reset()
 
     def reset(self) -> None:
@@ -54,6 +65,8 @@ class TwistEstimator:
         self.twist_w = np.zeros(6)
         self.accel_w = np.zeros(6)
         self._accel = np.zeros(6)  # the filter's own acceleration state (unsmoothed)
+        if self.manoeuvre is not None:
+            self.manoeuvre.reset()
 
     def predict(self, t_s: float) -> np.ndarray:
         """The pose extrapolated to ``t_s`` (seconds) with the current twist."""
@@ -67,17 +80,29 @@ class TwistEstimator:
             self.t_s, self.T_w_o, self.twist_w = t_s, T_w_o.copy(), np.zeros(6)
             return
         dt = t_s - self.t_s
-        theta = np.exp(-2.0 * np.pi * self.bandwidth_hz * dt)
-        alpha, beta, gamma = 1.0 - theta**3, 1.5 * (1.0 - theta) ** 2 * (1.0 + theta), (1.0 - theta) ** 3
         # Prediction at constant acceleration: the pose moves at the mean twist over the interval.
         P = geometry.advance(self.T_w_o, self.twist_w + 0.5 * dt * self._accel, dt)
         r = np.concatenate([T_w_o[:3, 3] - P[:3, 3], geometry.rotvec(T_w_o[:3, :3] @ P[:3, :3].T)])
+        boost = 1.0 if self.manoeuvre is None else self.manoeuvre.update(dt, r)
+        theta = np.exp(-2.0 * np.pi * self.bandwidth_hz * boost * dt)
+        if boost > 1.05:
+            # A manoeuvre: a constant-velocity (alpha–beta) model at the widened bandwidth, the acceleration
+            # state dropped. Widening the acceleration gain too (∝ boost³) would leave a large spurious
+            # acceleration behind that the normal bandwidth then takes long to forget.
+            alpha, beta, gamma = 1.0 - theta**2, (1.0 - theta) ** 2, 0.0
+            self._accel[:] = 0.0
+        else:
+            alpha, beta, gamma = 1.0 - theta**3, 1.5 * (1.0 - theta) ** 2 * (1.0 + theta), (1.0 - theta) ** 3
         T = np.eye(4)
         T[:3, 3] = P[:3, 3] + alpha * r[:3]
         T[:3, :3] = geometry.rotmat(alpha * r[3:]) @ P[:3, :3]
-        self.twist_w = self.twist_w + dt * self._accel + (beta / dt) * r
+        twist = self.twist_w + dt * self._accel + (beta / dt) * r
         self._accel = self._accel + (2.0 * gamma / dt**2) * r
-        self.accel_w += (1.0 - np.exp(-dt / self.accel_tau_s)) * (self._accel - self.accel_w)
+        # Outside, the acceleration is that of the estimated twist: the model's state, or while it has
+        # none (a manoeuvre) the twist's rate of change, which the feed-forward needs to follow it.
+        accel = self._accel if gamma > 0 else (twist - self.twist_w) / dt
+        self.twist_w = twist
+        self.accel_w += (1.0 - np.exp(-dt / self.accel_tau_s)) * (accel - self.accel_w)
         self.T_w_o, self.t_s = T, t_s
 
 
@@ -100,6 +125,7 @@ class PoseFilter:
         max_jump_rad: float = 0.3,
         bandwidth_hz: float = 5.5,
         accel_tau_s: float = 0.05,
+        manoeuvre: Manoeuvre | None = None,
     ) -> None:
         if not (0 < ema_alpha <= 1):
             raise ValueError("ema_alpha must be in (0, 1]")
@@ -109,7 +135,7 @@ class PoseFilter:
         self.stale_after_s = float(stale_after_s)
         self.max_jump_m = float(max_jump_m)
         self.max_jump_rad = float(max_jump_rad)
-        self.motion = TwistEstimator(bandwidth_hz, accel_tau_s)
+        self.motion = TwistEstimator(bandwidth_hz, accel_tau_s, manoeuvre)
         self._t_c_o_ema = np.zeros(3)
         self.T_w_o: np.ndarray | None = None  # smoothed object pose at pose_t_s
         self.pose_t_s: float | None = None  # time stamp of the last accepted pose (s)
@@ -182,10 +208,12 @@ class PoseFilter:
     def object_at(self, t_s: float, accel: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """The smoothed object pose extrapolated to ``t_s`` and its twist there (world frame): at
         constant velocity, or with ``accel`` at the estimated constant acceleration (the pose moved at
-        the mean twist over the interval)."""
+        the mean twist over the interval; at constant velocity while the motion estimator is widened
+        after a manoeuvre, :attr:`Manoeuvre.settled`)."""
         assert self.T_w_o is not None and self.pose_t_s is not None
         dt = t_s - self.pose_t_s
         if not accel:
             return geometry.advance(self.T_w_o, self.motion.twist_w, dt), self.motion.twist_w
-        a = self.motion.accel_w
+        m = self.motion.manoeuvre
+        a = self.motion.accel_w * (1.0 if m is None else m.settled)
         return geometry.advance(self.T_w_o, self.motion.twist_w + 0.5 * dt * a, dt), self.motion.twist_w + dt * a
