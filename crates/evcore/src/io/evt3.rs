@@ -192,7 +192,7 @@ impl Evt3Words {
         let mut n = 0usize;
         let mut res = Ok(());
         let mut words = as_words(block).iter();
-        while let Some(&c) = words.next() {
+        for &c in words.by_ref() {
             let w = u16::from_le_bytes(c);
             if w & 0xd000 == 0 {
                 // ADDR_Y (0x0) or ADDR_X (0x2): bit 13 tells them apart.
