@@ -177,6 +177,47 @@ fn time_slices_concatenate_to_the_stream() {
     assert!(!r.read_n_events(10, &mut joined).unwrap());
 }
 
+/// The owned slices (`next_until_t`, `next_n_events`, which hand the reader's buffer over or copy
+/// the smaller part) equal the appended ones, for cuts finer than a decode block, across blocks,
+/// and past the end of the file.
+#[test]
+fn owned_slices_equal_appended_slices() {
+    for name in [EVT3, EVT2_A] {
+        let path = samples_dir().join(name);
+        let Ok(mut whole) = RawReader::open(&path) else {
+            return;
+        };
+        let all = whole.read_rest().unwrap();
+        let total = all.len();
+        for step_us in [300, 4_000, 50_000] {
+            let (mut owned, mut appended) = (
+                RawReader::open(&path).unwrap(),
+                RawReader::open(&path).unwrap(),
+            );
+            let mut t = owned.peek_t().unwrap().unwrap();
+            let mut n = 0;
+            loop {
+                t += step_us;
+                let mut want = Vec::new();
+                let more = appended.read_until_t(t, &mut want).unwrap();
+                let got = owned.next_until_t(t).unwrap();
+                assert_eq!(got.is_some(), more, "{name} at {t}");
+                let Some(got) = got else { break };
+                assert_eq!(got, want, "{name} slice ending at {t}");
+                n += got.len();
+            }
+            assert_eq!(n, total);
+        }
+        let mut r = RawReader::open(&path).unwrap();
+        let mut joined = Vec::new();
+        while let Some(block) = r.next_n_events(70_001).unwrap() {
+            assert!(block.len() == 70_001 || joined.len() + block.len() == all.len());
+            joined.extend(block);
+        }
+        assert_eq!(joined, all);
+    }
+}
+
 #[test]
 fn truncated_file_inside_a_word_is_an_error() {
     let Some(bytes) = sample(EVT2_B) else { return };

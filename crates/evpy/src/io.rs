@@ -53,26 +53,16 @@ impl PyRawReader {
     /// exhausted.
     fn read_n_events<'py>(&mut self, py: Python<'py>, n: usize) -> PyResult<Option<Events<'py>>> {
         let reader = &mut self.inner;
-        let (more, out) = py
-            .detach(|| {
-                let mut out = Vec::new();
-                reader.read_n_events(n, &mut out).map(|more| (more, out))
-            })
-            .map_err(to_py)?;
-        Ok(more.then(|| to_array(py, out)))
+        let out = py.detach(|| reader.next_n_events(n)).map_err(to_py)?;
+        Ok(out.map(|events| to_array(py, events)))
     }
 
     /// The events before the first one at or after `t_us` (in stream order), as read_n_events;
     /// None once the file is exhausted. An empty time slice inside the file gives an empty array.
     fn read_until<'py>(&mut self, py: Python<'py>, t_us: i64) -> PyResult<Option<Events<'py>>> {
         let reader = &mut self.inner;
-        let (more, out) = py
-            .detach(|| {
-                let mut out = Vec::new();
-                reader.read_until_t(t_us, &mut out).map(|more| (more, out))
-            })
-            .map_err(to_py)?;
-        Ok(more.then(|| to_array(py, out)))
+        let out = py.detach(|| reader.next_until_t(t_us)).map_err(to_py)?;
+        Ok(out.map(|events| to_array(py, events)))
     }
 
     /// Every remaining event as one EVENT_CD array (empty at the end of the file).

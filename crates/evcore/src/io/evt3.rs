@@ -38,10 +38,12 @@ const BLOCK_BYTES: usize = 4 * 1024;
 struct State {
     /// TIME_HIGH base in µs, wraps applied.
     time_high_us: i64,
-    time_low_us: i64,
+    /// The time of the next event: the TIME_HIGH base plus the last TIME_LOW.
+    t_us: i64,
     y: u32,
-    x_base: u32,
-    vect_p: i16,
+    /// The last VECT_BASE_X word (x in bits 0..11, polarity in bit 11) plus, in bits 16..32, how
+    /// far the vectors since have advanced x (saturating).
+    vbase: u32,
 }
 
 /// Streaming EVT 3.0 decoder (see the module docs of [`crate::io`] for the shared rules).
@@ -90,8 +92,10 @@ impl WordDecoder for Evt3Words {
                     let w = u16::from_le_bytes([*lo, *hi]);
                     self.stats.words_by_type[usize::from(w >> 12)] += 1;
                     if w >> 12 == TIME_HIGH {
+                        let time_high_us = i64::from(w & 0xfff) << 12;
                         found = Some(State {
-                            time_high_us: i64::from(w & 0xfff) << 12,
+                            time_high_us,
+                            t_us: time_high_us,
                             ..State::default()
                         });
                         break;
@@ -118,122 +122,177 @@ impl WordDecoder for Evt3Words {
 impl Evt3Words {
     /// Decodes a block of whole words straight into the slots past the end of `out`.
     ///
-    /// The hot loop is shaped for the real streams, where ADDR_X and ADDR_Y (≈ 80 % of the
-    /// words) interleave unpredictably: those two take one branch-free path that always writes an
-    /// event slot and only advances the count for ADDR_X (so ADDR_Y merely leaves a slot that the
-    /// next event overwrites); the rarer types share a second path. Vector words expand through
-    /// a nibble table: four output slots per 4 mask bits, with the count advanced by the nibble's
-    /// population. Every write stays below `n + 12`, and `n` never exceeds 12 per word, which
-    /// is what the room reserved up front covers.
+    /// A first, vectorisable pass counts the ADDR_Y and ADDR_X words and checks every address
+    /// they carry against the sensor; when all lie on it (always, in a sound stream) the word
+    /// loop runs without bounds checks or counters on its hot path, otherwise a checked twin of
+    /// the same loop finds the first bad event exactly. See [`Evt3Words::decode_words_into`].
     fn decode_block<O: DecodeTarget>(
         &mut self,
         state: &mut State,
         block: &[u8],
         out: &mut O,
     ) -> Result<()> {
-        let mut s = *state;
         let slots = out.reserve_slots(12 * (block.len() / 2) + 12);
-        let (width, height) = (self.width, self.height);
-        let [mut n_y, mut n_x] = [0u64; 2];
-        let mut rare = [0u64; 16];
-        let mut loops = self.stats.time_loops;
-        let mut t = s.time_high_us + s.time_low_us;
-        let mut y = s.y;
-        let mut n = 0usize;
-        let mut res = Ok(());
-        for c in block.chunks_exact(2) {
-            let w = u16::from_le_bytes([c[0], c[1]]);
-            if w & 0xd000 == 0 {
-                // ADDR_Y (0x0) or ADDR_X (0x2).
-                let is_x = usize::from((w >> 13) & 1);
-                let v = u32::from(w & 0x7ff);
-                n_x += is_x as u64;
-                n_y += 1 - is_x as u64;
-                if (is_x != 0) & ((v >= width) | (y >= height)) {
-                    res = Err((v, y));
-                    break;
-                }
-                // SAFETY (every put): slot < n + 12 <= 12 * (words so far) + 12 <= room.
-                unsafe { slots.put(n, v as u16, y as u16, ((w >> 11) & 1) as i16, t) };
-                n += is_x;
-                y = if is_x != 0 { y } else { v };
-                continue;
-            }
-            let ty = w >> 12;
-            rare[usize::from(ty)] += 1;
-            match ty {
-                VECT_12 | VECT_8 => {
-                    let (mask, step) = if ty == VECT_12 {
-                        (u32::from(w & 0xfff), 12)
-                    } else {
-                        (u32::from(w & 0xff), 8)
-                    };
-                    if mask != 0 {
-                        let x_last = s.x_base + 31 - mask.leading_zeros();
-                        if x_last >= width || y >= height {
-                            res = Err((x_last, y));
-                            break;
-                        }
-                        // x_last < width <= 2048, so every slot value below fits in u16.
-                        let base = s.x_base as u16;
-                        let mut m = n;
-                        for j in 0..3 {
-                            let nibble = ((mask >> (4 * j)) & 0xf) as usize;
-                            let offsets = NIBBLE_BITS[nibble];
-                            let origin = base.wrapping_add(4 * j as u16);
-                            for (k, off) in offsets.iter().enumerate() {
-                                unsafe {
-                                    slots.put(
-                                        m + k,
-                                        origin.wrapping_add(*off),
-                                        y as u16,
-                                        s.vect_p,
-                                        t,
-                                    )
-                                };
-                            }
-                            m += nibble.count_ones() as usize;
-                        }
-                        n = m;
-                    }
-                    // Saturating: a long run of vectors in garbage input must not wrap
-                    // back into the sensor.
-                    s.x_base = s.x_base.saturating_add(step);
-                }
-                VECT_BASE_X => {
-                    s.x_base = u32::from(w & 0x7ff);
-                    s.vect_p = ((w >> 11) & 1) as i16;
-                }
-                TIME_LOW => {
-                    s.time_low_us = i64::from(w & 0xfff);
-                    t = s.time_high_us + s.time_low_us;
-                }
-                TIME_HIGH => {
-                    let raw = i64::from(w & 0xfff) << 12;
-                    s.time_high_us =
-                        unwrap_time_base(s.time_high_us, raw, &mut loops, PERIOD_US, WRAP_GUARD_US);
-                    t = s.time_high_us + s.time_low_us;
-                }
-                _ => {}
-            }
-        }
-        // SAFETY: the first n slots were written above.
+        let (n_y, n_x, on_sensor) = scan_addresses(block, self.width, self.height);
+        // The y carried in from the previous block is checked too: that block may have ended on
+        // an ADDR_Y off the sensor that no event used.
+        let (n, res) = if on_sensor && state.y < self.height {
+            let (n, res, words) = self.decode_words_into::<false, _>(state, block, slots);
+            // A vector off the sensor stops the run early: count only the words it read.
+            let (n_y, n_x, _) = match res {
+                Ok(()) => (n_y, n_x, true),
+                Err(_) => scan_addresses(&block[..2 * words], self.width, self.height),
+            };
+            self.stats.words_by_type[usize::from(ADDR_Y)] += n_y;
+            self.stats.words_by_type[usize::from(ADDR_X)] += n_x;
+            (n, res)
+        } else {
+            let (n, res, _) = self.decode_words_into::<true, _>(state, block, slots);
+            (n, res)
+        };
+        // SAFETY: the first n slots were written.
         unsafe { out.commit(n) };
-        s.y = y;
-        rare[usize::from(ADDR_Y)] += n_y;
-        rare[usize::from(ADDR_X)] += n_x;
-        for (total, k) in self.stats.words_by_type.iter_mut().zip(rare) {
-            *total += k;
-        }
-        self.stats.time_loops = loops;
-        *state = s;
         res.map_err(|(x, y)| {
+            let (width, height) = (self.width, self.height);
             let word = self.stats.words() - 1;
             Error::Decode(format!(
                 "EVT3 event at ({x}, {y}) lies outside the {width}x{height} sensor (word {word})"
             ))
         })
     }
+
+    /// The word loop: decodes `block` into `slots` and returns how many events it wrote, the
+    /// error (the pixel) that stopped it, and how many words it read. `CHECKED` = false skips the bounds checks and counting
+    /// of ADDR_X / ADDR_Y words, which [`scan_addresses`] did for the block.
+    ///
+    /// Shaped for the real streams, where ADDR_X and ADDR_Y (≈ 83 % of the words) interleave
+    /// unpredictably: those two take one branch-free path that always writes an event slot (two
+    /// 8-byte stores), advances the count only for ADDR_X (an ADDR_Y merely leaves a slot that
+    /// the next event overwrites) and selects the new y with a conditional move; the state it
+    /// carries stays in registers (y pre-shifted to its place in the record, the time as one
+    /// sum). The other types take a second path. Vector words expand through a nibble table:
+    /// four output slots per 4 mask bits, with the count advanced by the nibble's population.
+    /// Every write stays below `n + 12`, and `n` never exceeds 12 per word, which is what the
+    /// room reserved by the caller covers.
+    #[inline(always)]
+    fn decode_words_into<const CHECKED: bool, S: Slots>(
+        &mut self,
+        state: &mut State,
+        block: &[u8],
+        slots: S,
+    ) -> (usize, std::result::Result<(), (u64, u64)>, usize) {
+        let width = u64::from(self.width);
+        let height_sh = u64::from(self.height) << 16;
+        let mut high = state.time_high_us;
+        let mut t = state.t_us;
+        let mut y_sh = u64::from(state.y) << 16;
+        let mut vbase = state.vbase;
+        let mut counts = [0u64; 16];
+        let mut loops = self.stats.time_loops;
+        let mut n = 0usize;
+        let mut res = Ok(());
+        let mut words = as_words(block).iter();
+        for &c in words.by_ref() {
+            let w = u16::from_le_bytes(c);
+            if w & 0xd000 == 0 {
+                // ADDR_Y (0x0) or ADDR_X (0x2): bit 13 tells them apart.
+                let w = u64::from(w);
+                let v = w & 0x7ff;
+                let is_x = (w >> 13) & 1;
+                if CHECKED {
+                    counts[usize::from(ADDR_X)] += is_x;
+                    counts[usize::from(ADDR_Y)] += 1 - is_x;
+                    if (is_x != 0) & ((v >= width) | (y_sh >= height_sh)) {
+                        res = Err((v, y_sh >> 16));
+                        break;
+                    }
+                }
+                // x | y << 16 | p << 32: polarity is bit 11 of the word.
+                let xyp = v | y_sh | ((w & 0x800) << 21);
+                // SAFETY (every put): slot < n + 12 <= 12 * (words so far) + 12 <= room.
+                unsafe { slots.put_packed(n, xyp, t) };
+                n += is_x as usize;
+                y_sh = if is_x != 0 { y_sh } else { v << 16 };
+                continue;
+            }
+            let ty = w >> 12;
+            counts[usize::from(ty)] += 1;
+            match ty {
+                VECT_12 | VECT_8 => {
+                    let (bits, step) = if ty == VECT_12 {
+                        (u64::from(w & 0xfff), 12)
+                    } else {
+                        (u64::from(w & 0xff), 8)
+                    };
+                    if bits != 0 {
+                        let x_base = u64::from(vbase & 0x7ff) + u64::from(vbase >> 16);
+                        let x_last = x_base + 63 - u64::from(bits.leading_zeros());
+                        if x_last >= width || y_sh >= height_sh {
+                            res = Err((x_last, y_sh >> 16));
+                            break;
+                        }
+                        // x_last < width <= 2048: adding an offset to x never carries into y.
+                        let first = x_base | y_sh | (u64::from(vbase & 0x800) << 21);
+                        let mut m = n;
+                        for j in 0..3 {
+                            let nibble = ((bits >> (4 * j)) & 0xf) as usize;
+                            let origin = first + 4 * j;
+                            for (k, off) in NIBBLE_BITS[nibble].iter().enumerate() {
+                                unsafe { slots.put_packed(m + k, origin + u64::from(*off), t) };
+                            }
+                            m += nibble.count_ones() as usize;
+                        }
+                        n = m;
+                    }
+                    // The advance since VECT_BASE_X counts in the high half, saturating: a long
+                    // run of vectors in garbage input must not wrap back into the sensor.
+                    vbase = vbase.saturating_add(step << 16);
+                }
+                VECT_BASE_X => vbase = u32::from(w),
+                TIME_LOW => t = high + i64::from(w & 0xfff),
+                TIME_HIGH => {
+                    let low = t - high;
+                    let raw = i64::from(w & 0xfff) << 12;
+                    high = unwrap_time_base(high, raw, &mut loops, PERIOD_US, WRAP_GUARD_US);
+                    t = high + low;
+                }
+                _ => {}
+            }
+        }
+        *state = State {
+            time_high_us: high,
+            t_us: t,
+            y: (y_sh >> 16) as u32,
+            vbase,
+        };
+        for (total, k) in self.stats.words_by_type.iter_mut().zip(counts) {
+            *total += k;
+        }
+        self.stats.time_loops = loops;
+        (n, res, block.len() / 2 - words.len())
+    }
+}
+
+/// The whole 2-byte words of `bytes` (a trailing odd byte left out), each one load.
+fn as_words(bytes: &[u8]) -> &[[u8; 2]] {
+    // SAFETY: [u8; 2] has alignment 1 and no invalid values; the length stays inside `bytes`.
+    unsafe { std::slice::from_raw_parts(bytes.as_ptr().cast(), bytes.len() / 2) }
+}
+
+/// (ADDR_Y words, ADDR_X words, whether every address they carry lies on the `width`×`height`
+/// sensor) of a block of EVT 3.0 words. One pass without branches, which the compiler vectorises.
+fn scan_addresses(block: &[u8], width: u32, height: u32) -> (u64, u64, bool) {
+    let (width, height) = (width as u16, height as u16);
+    let (mut n_y, mut n_x, mut bad) = (0u32, 0u32, false);
+    for &c in as_words(block) {
+        let w = u16::from_le_bytes(c);
+        let (ty, v) = (w >> 12, w & 0x7ff);
+        let (is_y, is_x) = (ty == ADDR_Y, ty == ADDR_X);
+        n_y += u32::from(is_y);
+        n_x += u32::from(is_x);
+        bad |= (is_x & (v >= width)) | (is_y & (v >= height));
+    }
+    (u64::from(n_y), u64::from(n_x), !bad)
 }
 
 /// For each 4-bit vector mask, the offsets of its set bits in order, padded with zeros.

@@ -84,9 +84,7 @@ impl<R: Read> RawReader<R> {
     /// Appends the next `n` events to `out` (fewer at the end of the stream). Returns false,
     /// appending nothing, once the stream is exhausted.
     pub fn read_n_events(&mut self, n: usize, out: &mut impl EventSink) -> Result<bool> {
-        self.check()?;
-        while self.buf.len() - self.pos < n && self.fill()? {}
-        let end = self.pos + n.min(self.buf.len() - self.pos);
+        let end = self.end_after_n(n)?;
         Ok(self.hand_out(end, out))
     }
 
@@ -95,19 +93,46 @@ impl<R: Read> RawReader<R> {
     /// cut belong to the next slice: stream order is never changed. Returns false, appending
     /// nothing, once the stream is exhausted; an empty slice inside the stream returns true.
     pub fn read_until_t(&mut self, t_us: i64, out: &mut impl EventSink) -> Result<bool> {
+        let end = self.end_before_t(t_us)?;
+        Ok(self.hand_out(end, out))
+    }
+
+    /// The slice of [`RawReader::read_n_events`] as a vector of its own; None once the stream is
+    /// exhausted. Where the slice is all the reader holds, its buffer is handed over uncopied.
+    pub fn next_n_events(&mut self, n: usize) -> Result<Option<Vec<EventCd>>> {
+        let end = self.end_after_n(n)?;
+        Ok(self.take(end))
+    }
+
+    /// The slice of [`RawReader::read_until_t`] as a vector of its own; None once the stream is
+    /// exhausted. Where the slice is all the reader holds, its buffer is handed over uncopied.
+    pub fn next_until_t(&mut self, t_us: i64) -> Result<Option<Vec<EventCd>>> {
+        let end = self.end_before_t(t_us)?;
+        Ok(self.take(end))
+    }
+
+    /// Buffer index just past the next `n` events, decoding as needed.
+    fn end_after_n(&mut self, n: usize) -> Result<usize> {
+        self.check()?;
+        while self.buf.len() - self.pos < n && self.fill()? {}
+        Ok(self.pos + n.min(self.buf.len() - self.pos))
+    }
+
+    /// Buffer index of the first event at or after `t_us` (the buffer's end if none, once the
+    /// stream is exhausted), decoding as needed.
+    fn end_before_t(&mut self, t_us: i64) -> Result<usize> {
         self.check()?;
         let mut scanned = 0;
-        let end = loop {
+        loop {
             let from = self.pos + scanned;
             if let Some(k) = self.buf[from..].iter().position(|e| e.t >= t_us) {
-                break from + k;
+                return Ok(from + k);
             }
             scanned = self.buf.len() - self.pos;
             if !self.fill()? {
-                break self.buf.len();
+                return Ok(self.buf.len());
             }
-        };
-        Ok(self.hand_out(end, out))
+        }
     }
 
     /// Appends every remaining event to `out`; returns how many.
@@ -174,6 +199,25 @@ impl<R: Read> RawReader<R> {
         end > a || !(self.eof && self.pos == self.buf.len())
     }
 
+    /// Buffered events `pos..end` as a vector; None when nothing is left. Copies the smaller of
+    /// the slice and what stays buffered: a slice reaching the buffer's end is the buffer itself,
+    /// and a slice starting at its head keeps the buffer when the rest is the smaller part.
+    fn take(&mut self, end: usize) -> Option<Vec<EventCd>> {
+        let (a, len) = (self.pos, self.buf.len());
+        if end == a && self.eof && a == len {
+            return None;
+        }
+        if a == 0 && end == len {
+            return Some(std::mem::take(&mut self.buf));
+        }
+        if a == 0 && len - end < end {
+            let rest = self.buf.split_off(end);
+            return Some(std::mem::replace(&mut self.buf, rest));
+        }
+        self.pos = end;
+        Some(self.buf[a..end].to_vec())
+    }
+
     /// Decodes the next block of input into the buffer; false at the end of the stream.
     fn fill(&mut self) -> Result<bool> {
         if self.eof {
@@ -201,6 +245,8 @@ impl<R: Read> RawReader<R> {
             return Ok(false);
         }
         let n = chunk.len();
+        // Room for the chunk at once, rather than growing by doubling as it decodes.
+        self.buf.reserve(self.header.format.events_hint(n));
         let first_new = self.buf.len();
         let res = self.decoder.decode(chunk, &mut self.buf);
         // Events decoded before an error are kept, so they get the offset too.

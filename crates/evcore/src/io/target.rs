@@ -11,6 +11,16 @@ pub trait Slots: Copy {
     /// # Safety
     /// Slot `i` must lie inside the room reserved by [`DecodeTarget::reserve_slots`].
     unsafe fn put(self, i: usize, x: u16, y: u16, p: i16, t: i64);
+
+    /// Write event `i` from `xyp` = x | y << 16 | p << 32 (bits 48..64 zero): the first 8
+    /// bytes of an [`EventCd`] read as a little-endian u64, so that a record is two stores.
+    ///
+    /// # Safety
+    /// As for [`Slots::put`].
+    #[inline(always)]
+    unsafe fn put_packed(self, i: usize, xyp: u64, t: i64) {
+        self.put(i, xyp as u16, (xyp >> 16) as u16, (xyp >> 32) as i16, t);
+    }
 }
 
 /// An output a decoder appends to: reserve room, write slots, commit how many were written.
@@ -91,6 +101,17 @@ impl Slots for RecordSlots {
     #[inline(always)]
     unsafe fn put(self, i: usize, x: u16, y: u16, p: i16, t: i64) {
         self.0.add(i).write(EventCd::new(x, y, p, t));
+    }
+
+    #[inline(always)]
+    unsafe fn put_packed(self, i: usize, xyp: u64, t: i64) {
+        if cfg!(target_endian = "little") {
+            // EventCd is x, y, p, pad (2 bytes each), then t: on a little-endian machine its
+            // first 8 bytes are `xyp`. It is 8-aligned, so the slot is a valid [u64; 2].
+            self.0.add(i).cast::<[u64; 2]>().write([xyp, t as u64]);
+        } else {
+            self.put(i, xyp as u16, (xyp >> 16) as u16, (xyp >> 32) as i16, t);
+        }
     }
 }
 
