@@ -88,6 +88,7 @@ lint: $(VENV)/.deps
 	cargo fmt --all -- --check
 	cargo clippy -p evcore -p evpy --all-targets -- -D warnings
 	$(BIN)/ruff check python tests
+	$(BIN)/ruff format --check python tests
 
 fmt: $(VENV)/.deps
 	cargo fmt --all

@@ -1,3 +1,7 @@
+import os
+import subprocess
+import sys
+
 import cv2
 import numpy as np
 import pytest
@@ -159,3 +163,31 @@ def test_bad_meshes_and_poses_raise_value_error():
     far[2, 3] = -1.0
     with pytest.raises(ValueError, match="not in view"):
         ec.extract_point_set(mesh, CAM, far)
+
+
+def test_a_ctrl_c_during_the_mesh_library_import_is_not_lost(tmp_path):
+    """trimesh's optional imports catch ``BaseException``: a Ctrl-C pressed while it is imported was
+    swallowed and the command went on. A stand-in ``trimesh`` that swallows the Ctrl-C it receives
+    mid-import shows the one evservo holds back arriving once the import is done."""
+    fake = tmp_path / "trimesh.py"
+    fake.write_text(
+        "import os, signal, time\n"
+        "try:\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(0.2)\n"
+        "except BaseException:\n"
+        "    pass\n"
+        "IMPORTED = True\n"
+    )
+    code = (
+        "from evservo import models\n"
+        "try:\n"
+        "    models.trimesh_module()\n"
+        "except KeyboardInterrupt:\n"
+        "    import sys; print('interrupted after import', sys.modules['trimesh'].IMPORTED)\n"
+        "else:\n"
+        "    print('lost')\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "interrupted after import True", out.stdout + out.stderr

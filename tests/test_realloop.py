@@ -392,7 +392,7 @@ def _unused_host() -> str:
             "cannot connect to the Franka robot",
         ),
         (["--robot", "sim", "--camera", "{rec}", "--realtime", "ignore"], "franka"),
-        (["--sim", "--camera", "{rec}"], "only apply with --robot"),
+        (["--sim", "--camera", "{rec}"], "--camera only applies with --robot"),
     ],
 )
 def test_bad_input_exits_non_zero_with_a_message(args, message, rec_path, rec, tmp_path, capsys):
@@ -511,3 +511,15 @@ def test_cli_watchdog_stop_exits_1_and_still_writes_the_summary(rec_path, tmp_pa
     assert err.startswith("evservo: error: servoing stopped (arm stopped): watchdog") and "Traceback" not in err
     s = json.loads((tmp_path / "summary.json").read_text())
     assert not s["completed"] and len(s["watchdog"]) == 1 and s["watchdog"][0]["zero_s"] is not None
+
+
+def test_cli_jump_gate_options_reach_the_watchdog(rec_path, tmp_path, capsys):
+    """``--max-jump``: a gate of 10 µm refuses the first pose after the start (the box moves far more
+    than that between two poses), which stops the run like any other watchdog."""
+    args = ["servo", "--robot", "sim", "--camera", str(rec_path), "--settle", "0.1", "--replay-speed", str(SPEED),
+            "--stale-after", "1.0", "--max-jump", "1e-5", "--out", str(tmp_path)]  # fmt: skip
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "watchdog: pose jump: jump of" in err and "Traceback" not in err
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert not s["completed"] and s["ended"].startswith("watchdog: pose jump")

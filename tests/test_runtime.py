@@ -137,7 +137,7 @@ def test_watchdog_spells_from_a_per_cycle_record():
 def test_sim_only_options_are_refused_with_robot(tmp_path, capsys):
     code = cli.main(["servo", "--robot", "sim", "--camera", str(tmp_path / "x.raw"), "--speed", "0.3"])
     assert code == 2
-    assert "--speed only apply with --sim" in capsys.readouterr().err
+    assert "--speed only applies with --sim" in capsys.readouterr().err
     code = cli.main(["servo", "--robot", "sim", "--camera", "x.raw", "--object", "box", "--events", "render"])
     assert code == 2
     assert "--object, --events only apply with --sim" in capsys.readouterr().err
@@ -154,3 +154,10 @@ def test_a_hardware_rig_loads_no_simulator():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
+
+
+def test_the_command_line_starts_without_the_mesh_library():
+    """``evservo --help`` and argument errors need no trimesh (about 2 s to import)."""
+    code = "import sys, evservo, evservo.cli\nevservo.cli.build_parser()\nprint('trimesh' in sys.modules)\n"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

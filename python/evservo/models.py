@@ -34,13 +34,40 @@ intensity (0 = black, 1 = white), which is what the renderer and the event simul
 from __future__ import annotations
 
 import os
+import signal
+import threading
 from dataclasses import dataclass
+from functools import cache
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import trimesh
 from PIL import Image
 
 from evservo import _evcore
+
+if TYPE_CHECKING:
+    import trimesh
+
+
+@cache
+def trimesh_module() -> Any:
+    """trimesh, imported on first use (it takes about 2 s, which every ``evservo`` command paid at
+    start), with Ctrl-C held back meanwhile: its optional imports catch ``BaseException``, so a Ctrl-C
+    pressed during them would be lost; held back, it is raised as soon as the import is done."""
+    if threading.current_thread() is not threading.main_thread():  # only the main thread gets Ctrl-C
+        import trimesh
+
+        return trimesh
+    pressed: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: pressed.append(signum))
+    try:
+        import trimesh
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if pressed and callable(previous):
+        previous(signal.SIGINT, None)  # the default handler raises KeyboardInterrupt
+    return trimesh
+
 
 BUILTIN_OBJECTS = ("box", "drill", "football", "can", "cylinder", "checker-can", "mug", "part", "plate")
 
@@ -145,8 +172,8 @@ def _make_box() -> trimesh.Trimesh:
         r0, r1 = round((1 - v1) * _BOX_TEX_PX), round((1 - v0) * _BOX_TEX_PX)
         c0, c1 = round(u0 * _BOX_TEX_PX), round(u1 * _BOX_TEX_PX)
         image[r0:r1, c0:c1] = _paint_tile(r1 - r0, c1 - c0, k)
-    visual = trimesh.visual.TextureVisuals(uv=np.array(uvs), image=Image.fromarray(image))
-    return trimesh.Trimesh(np.array(vertices), np.array(faces), visual=visual, process=False)
+    visual = trimesh_module().visual.TextureVisuals(uv=np.array(uvs), image=Image.fromarray(image))
+    return trimesh_module().Trimesh(np.array(vertices), np.array(faces), visual=visual, process=False)
 
 
 # --- drill -----------------------------------------------------------------------------------
@@ -154,18 +181,18 @@ def _make_box() -> trimesh.Trimesh:
 
 def _along_x(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """trimesh cylinders run along z; the drill's axis is x."""
-    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (0, 1, 0)))
+    mesh.apply_transform(trimesh_module().transformations.rotation_matrix(np.pi / 2, (0, 1, 0)))
     return mesh
 
 
 def _make_drill() -> trimesh.Trimesh:
     # (part, linear albedo); every part is closed, so the union is watertight edge-wise.
     parts = [
-        (_along_x(trimesh.creation.cylinder(0.032, 0.17, sections=40)), 0.45),  # motor body
-        (_along_x(trimesh.creation.cylinder(0.02, 0.05, sections=32)), 0.03),  # chuck
-        (_along_x(trimesh.creation.cylinder(0.004, 0.06, sections=12)), 0.7),  # bit
-        (trimesh.creation.box((0.045, 0.12, 0.04)), 0.15),  # handle
-        (trimesh.creation.box((0.10, 0.04, 0.075)), 0.02),  # battery pack
+        (_along_x(trimesh_module().creation.cylinder(0.032, 0.17, sections=40)), 0.45),  # motor body
+        (_along_x(trimesh_module().creation.cylinder(0.02, 0.05, sections=32)), 0.03),  # chuck
+        (_along_x(trimesh_module().creation.cylinder(0.004, 0.06, sections=12)), 0.7),  # bit
+        (trimesh_module().creation.box((0.045, 0.12, 0.04)), 0.15),  # handle
+        (trimesh_module().creation.box((0.10, 0.04, 0.075)), 0.02),  # battery pack
     ]
     offsets = [(0.0, 0.0, 0.0), (0.11, 0.0, 0.0), (0.165, 0.0, 0.0), (-0.03, 0.08, 0.0), (-0.02, 0.16, 0.0)]
     vertices, faces, colours, base = [], [], [], 0
@@ -177,14 +204,16 @@ def _make_drill() -> trimesh.Trimesh:
         colours.append(np.tile((grey, grey, grey, 255), (len(part.vertices), 1)))
     v = np.vstack(vertices)
     v -= (v.min(axis=0) + v.max(axis=0)) / 2.0
-    return trimesh.Trimesh(v, np.vstack(faces), vertex_colors=np.vstack(colours).astype(np.uint8), process=False)
+    return trimesh_module().Trimesh(
+        v, np.vstack(faces), vertex_colors=np.vstack(colours).astype(np.uint8), process=False
+    )
 
 
 # --- football --------------------------------------------------------------------------------
 
 
 def _make_football(subdivisions: int = 4) -> trimesh.Trimesh:
-    ico = trimesh.creation.icosahedron()
+    ico = trimesh_module().creation.icosahedron()
     iv = ico.vertices / np.linalg.norm(ico.vertices, axis=1, keepdims=True)
 
     def cut(i: int, j: int) -> np.ndarray:
@@ -233,7 +262,7 @@ def _make_football(subdivisions: int = 4) -> trimesh.Trimesh:
     black, white = int(_linear_to_srgb8(0.03)), int(_linear_to_srgb8(0.85))
     grey = np.where(np.array(dark), black, white).astype(np.uint8)
     colours = np.column_stack([grey, grey, grey, np.full_like(grey, 255)])
-    return trimesh.Trimesh(unique, faces, face_colors=colours, process=False)
+    return trimesh_module().Trimesh(unique, faces, face_colors=colours, process=False)
 
 
 # --- cylinders: can, plain cylinder, checker can, mug -------------------------------------------
@@ -275,8 +304,8 @@ def _textured_cylinder(radius: float, height: float, label: np.ndarray, cap_grey
         for k in range(n):
             i, j = ring + k, ring + (k + 1) % n
             faces.append((centre, i, j) if y > 0 else (centre, j, i))
-    visual = trimesh.visual.TextureVisuals(uv=np.array(uvs), image=Image.fromarray(atlas))
-    return trimesh.Trimesh(np.array(vertices), np.array(faces), visual=visual, process=False)
+    visual = trimesh_module().visual.TextureVisuals(uv=np.array(uvs), image=Image.fromarray(atlas))
+    return trimesh_module().Trimesh(np.array(vertices), np.array(faces), visual=visual, process=False)
 
 
 def _irregular_label() -> np.ndarray:
@@ -324,8 +353,8 @@ def _make_checker_can() -> trimesh.Trimesh:
 
 
 def _make_cylinder() -> trimesh.Trimesh:
-    mesh = trimesh.creation.cylinder(CAN_RADIUS_M, CAN_HEIGHT_M, sections=_CAN_SECTIONS)
-    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
+    mesh = trimesh_module().creation.cylinder(CAN_RADIUS_M, CAN_HEIGHT_M, sections=_CAN_SECTIONS)
+    mesh.apply_transform(trimesh_module().transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
     return _plain(mesh, 0.35)
 
 
@@ -333,7 +362,7 @@ def _plain(mesh: trimesh.Trimesh, albedo: float) -> trimesh.Trimesh:
     """``mesh`` in one matte linear albedo, as vertex colours, centred on its bounding box."""
     grey = int(_linear_to_srgb8(albedo))
     colours = np.tile((grey, grey, grey, 255), (len(mesh.vertices), 1))
-    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
+    mesh.visual = trimesh_module().visual.ColorVisuals(mesh, vertex_colors=colours)
     mesh.apply_translation(-(mesh.bounds[0] + mesh.bounds[1]) / 2.0)
     return mesh
 
@@ -342,26 +371,26 @@ def _make_mug() -> trimesh.Trimesh:
     """A mug along y: body radius 0.04 m, height 0.095 m, and a handle loop (a torus section of
     tube radius 6 mm) on +x. Parts overlap instead of being booleaned: the renderer only needs
     the visible surface."""
-    body = trimesh.creation.cylinder(0.04, 0.095, sections=_CAN_SECTIONS)
-    body.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
-    handle = trimesh.creation.torus(0.028, 0.006, major_sections=48, minor_sections=12)
+    body = trimesh_module().creation.cylinder(0.04, 0.095, sections=_CAN_SECTIONS)
+    body.apply_transform(trimesh_module().transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
+    handle = trimesh_module().creation.torus(0.028, 0.006, major_sections=48, minor_sections=12)
     # The torus lies in the x-y plane after turning its axis (z) onto the mug's side.
     handle.apply_translation((0.04, 0.0, 0.0))
-    return _plain(trimesh.util.concatenate([body, handle]), 0.6)
+    return _plain(trimesh_module().util.concatenate([body, handle]), 0.6)
 
 
 def _make_part() -> trimesh.Trimesh:
     """An L-bracket 0.12 x 0.09 x 0.05 m (base plate, upright wall, round boss on the base) in one
     matte grey: only geometric edges, no print."""
     # Parts overlap a little instead of touching, so that no two share a vertex: each stays closed.
-    base = trimesh.creation.box((0.118, 0.015, 0.05))
+    base = trimesh_module().creation.box((0.118, 0.015, 0.05))
     base.apply_translation((0.001, 0.0375, 0.0))
-    wall = trimesh.creation.box((0.015, 0.09, 0.05))
+    wall = trimesh_module().creation.box((0.015, 0.09, 0.05))
     wall.apply_translation((-0.0525, 0.0, 0.0))
-    boss = trimesh.creation.cylinder(0.014, 0.02, sections=40)
-    boss.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
+    boss = trimesh_module().creation.cylinder(0.014, 0.02, sections=40)
+    boss.apply_transform(trimesh_module().transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
     boss.apply_translation((0.025, 0.025, 0.0))
-    return _plain(trimesh.util.concatenate([base, wall, boss]), 0.4)
+    return _plain(trimesh_module().util.concatenate([base, wall, boss]), 0.4)
 
 
 def _make_plate() -> trimesh.Trimesh:
@@ -385,7 +414,7 @@ def _make_plate() -> trimesh.Trimesh:
         faces += [(a, c, 12 + c), (a, 12 + c, 12 + a)]
     grey = np.array(colours, np.uint8)
     rgba = np.column_stack([grey, grey, grey, np.full_like(grey, 255)])
-    return trimesh.Trimesh(np.array(vertices, float), np.array(faces), vertex_colors=rgba, process=False)
+    return trimesh_module().Trimesh(np.array(vertices, float), np.array(faces), vertex_colors=rgba, process=False)
 
 
 _BUILDERS = {
@@ -404,13 +433,13 @@ _BUILDERS = {
 def load_object(obj: str | os.PathLike | trimesh.Trimesh) -> trimesh.Trimesh:
     """A built-in object by name (see :data:`BUILTIN_OBJECTS`), any mesh file trimesh can load
     (metres; texture or vertex colours are kept), or a ``trimesh.Trimesh`` passed through."""
-    if isinstance(obj, trimesh.Trimesh):
+    if isinstance(obj, trimesh_module().Trimesh):
         return obj
     if isinstance(obj, str) and obj in _BUILDERS:
         return _BUILDERS[obj]()
     if isinstance(obj, str | os.PathLike) and os.path.isfile(obj):
-        loaded = trimesh.load(obj, force="mesh")
-        if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        loaded = trimesh_module().load(obj, force="mesh")
+        if not isinstance(loaded, trimesh_module().Trimesh) or len(loaded.faces) == 0:
             raise ValueError(f"{obj!s} holds no triangle mesh")
         return loaded
     raise ValueError(f"unknown object {obj!r}: not a file; built-in objects are {', '.join(BUILTIN_OBJECTS)}")
@@ -542,7 +571,7 @@ def symmetries(
         matches = []
         for deg in SYMMETRY_ANGLES_DEG:
             turn = np.eye(4)
-            turn[:3, :3] = trimesh.transformations.rotation_matrix(np.deg2rad(deg), axis, centre)[:3, :3]
+            turn[:3, :3] = trimesh_module().transformations.rotation_matrix(np.deg2rad(deg), axis, centre)[:3, :3]
             turn[:3, 3] = centre - turn[:3, :3] @ centre
             turned = _edge_pixels(mesh, camera, T_c_o @ turn)
             matches.append(_chamfer_px(turned, reference, image_shape) < SYMMETRY_TOL_PX)

@@ -43,9 +43,11 @@ CSV_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad")
 Trajectory = Callable[[np.ndarray], np.ndarray]
 
 
-def _compose(trans: np.ndarray, rotvec: np.ndarray) -> np.ndarray:
+def _compose(trans: np.ndarray, rotvec: np.ndarray | None) -> np.ndarray:
+    """Displacements (N, 4, 4) from translations (N, 3) and rotation vectors (N, 3; None: no rotation)."""
     D = np.tile(np.eye(4), (len(trans), 1, 1))
-    D[:, :3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+    if rotvec is not None:  # (a zero rotation vector gives the identity exactly; this skips scipy's cost)
+        D[:, :3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
     D[:, :3, 3] = trans
     return D
 
@@ -93,7 +95,7 @@ def make_trajectory(
                 axis=1,
             )
         else:
-            rot = np.zeros_like(trans)
+            rot = None
         return _compose(trans, rot)
 
     return traj

@@ -30,9 +30,10 @@ use crate::event::{validate_events, EventRecords};
 use crate::field::{DistanceField, FieldParams};
 use crate::freshness::{max_age_us, MotionMemory, Recency};
 use crate::image::Roi;
+use crate::se3::unit_twist;
 use crate::se3::Pose;
-use crate::solve::cost::{centroid, cost_stats, Pinhole, Rigid32, ViewMask};
-use crate::solve::lm::{lm_pyramid, LmParams};
+use crate::solve::cost::{apply_increment, centroid, cost_stats, Pinhole, Rigid32, ViewMask};
+use crate::solve::lm::{lm_pyramid, LmParams, LmReport};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
 use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
@@ -212,6 +213,19 @@ const VIEW_MARGIN_PX: f64 = 2.0;
 /// How long (event time, µs) a given pose may read lost before the tracker searches for the
 /// object instead (with a template bank): a start pose that never locks is taken to be wrong.
 const UNCONFIRMED_US: i64 = 100_000;
+
+/// A stretch of event time this long (µs) without a single event is a dropout (sensor, link or a
+/// thinning producer), not a quiet scene: the sensor's background activity alone fires every few
+/// µs. Whatever the front-end held before it shows where things were, not where they are.
+pub const EVENT_GAP_US: i64 = 20_000;
+/// For this long (µs) after events resume from a gap, the solver sees only pixels whose block has
+/// fired since: the pre-gap edges would hold the pose where the object was.
+const AFTER_GAP_US: i64 = 100_000;
+
+/// While lost with a template bank, a global pass runs at most this often (event time, µs); the
+/// steps in between keep tracking locally, so a pose that is right again is trusted again at once
+/// (the global pass alone only accepts a pose it found itself).
+const GLOBAL_PASS_EVERY_US: i64 = 10_000;
 
 /// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
 const MIN_VISIBLE_POINTS: usize = 6;
@@ -408,6 +422,9 @@ impl NewestBatch {
 pub struct TrackerOutput {
     latest: EstimateCell,
     newest: NewestBatch,
+    /// Time (µs) of the first event after the last gap of at least [`EVENT_GAP_US`] in the
+    /// stream; `i64::MIN` if none.
+    resumed_at_us: AtomicI64,
     /// Accepted non-empty batches; the solver compares it to see whether anything new arrived.
     batches: AtomicU64,
     offered: AtomicU64,
@@ -428,6 +445,7 @@ impl TrackerOutput {
         Self {
             latest: EstimateCell::new(initial),
             newest: NewestBatch::new(),
+            resumed_at_us: AtomicI64::new(i64::MIN),
             batches: AtomicU64::new(0),
             offered: AtomicU64::new(0),
             ingested: AtomicU64::new(0),
@@ -593,6 +611,12 @@ impl Ingest {
             return Ok(());
         }
         let (first_t, last_t) = (events.t_at(0), events.t_at(n - 1));
+        if self
+            .last_t_us
+            .is_some_and(|prev| first_t - prev >= EVENT_GAP_US)
+        {
+            self.out.resumed_at_us.store(first_t, Ordering::Release);
+        }
         let validated = Instant::now();
         let keep = if thin {
             self.thinning.offer(n, first_t, last_t, self.last_t_us)
@@ -663,6 +687,7 @@ impl Ingest {
             f.reset();
         }
         self.out.newest.set(i64::MIN, 0);
+        self.out.resumed_at_us.store(i64::MIN, Ordering::Release);
     }
 }
 
@@ -678,6 +703,8 @@ pub struct Solver {
     view: ViewMask,
     /// The points visible at the current step (reused buffer).
     visible: Vec<[f32; 3]>,
+    /// The last LM step of this cycle: its held directions are held in the search steps too.
+    last_lm: Option<LmReport>,
     schedule: Schedule,
     config: TrackerConfig,
     last: Estimate,
@@ -700,6 +727,11 @@ pub struct Solver {
     points_dir_o: Option<Vector3<f64>>,
     /// What the events said at the last tracked pose (diagnostics).
     evidence: Evidence,
+    /// A pose was given or trusted once: while lost, local steps track on from it between the
+    /// global passes.
+    had_pose: bool,
+    /// Event time (µs) of the last global pass.
+    last_global_us: Option<i64>,
 }
 
 fn check_pose(pose: &Pose) -> Result<()> {
@@ -743,6 +775,7 @@ impl Solver {
             pins,
             view,
             visible: Vec::new(),
+            last_lm: None,
             schedule,
             last: Estimate {
                 pose: t_c_o,
@@ -769,6 +802,8 @@ impl Solver {
             bank: None,
             points_dir_o: None,
             evidence: Evidence::default(),
+            had_pose: true,
+            last_global_us: None,
         };
         solver.publish();
         Ok(solver)
@@ -802,10 +837,12 @@ impl Solver {
     fn reset_pose(&mut self, t_c_o: Pose) -> Result<()> {
         check_pose(&t_c_o)?;
         self.last.pose = t_c_o;
+        self.last_lm = None;
         // Not locked until an update confirms the new pose against the events; but a given pose
         // is tracked from, not searched for.
         self.last.lost = true;
         self.searching = false;
+        self.had_pose = true;
         self.unconfirmed_since_us = None;
         self.motion.reset();
         self.schedule.restart();
@@ -816,17 +853,24 @@ impl Solver {
     /// One update: rebuild the field from the current active set and run the next scheduled step
     /// (or, while lost with a template bank, one global search).
     fn step(&mut self) -> Estimate {
+        // Read before the mask: every event up to this time is in what the mask shows.
+        let newest = self.newest();
+        let t_us = newest.0;
         if self.searching {
             if let Some(bank) = self.bank.clone() {
-                return self.reacquire(&bank);
+                // Without a pose ever trusted there is nothing to track locally.
+                let due = self
+                    .last_global_us
+                    .is_none_or(|t| t_us - t >= GLOBAL_PASS_EVERY_US || t_us < t);
+                if due || !self.had_pose {
+                    self.last_global_us = Some(t_us);
+                    return self.reacquire(&bank);
+                }
             }
         }
         let kind = self.schedule.next_step();
         let started = Instant::now();
         let pose = self.last.pose;
-        // Read before the mask: every event up to this time is in what the mask shows.
-        let newest = self.newest();
-        let t_us = newest.0;
         let n_events = self.out.ingested.load(Ordering::Relaxed);
         let margin = match kind {
             StepKind::Lm => self.config.roi_margin_px,
@@ -864,6 +908,10 @@ impl Solver {
         };
         self.mask.resize(roi.area(), 0);
         self.reader.fill_mask(roi, &mut self.mask);
+        let resumed = self.out.resumed_at_us.load(Ordering::Acquire);
+        if resumed != i64::MIN && (0..AFTER_GAP_US).contains(&(t_us - resumed)) {
+            self.recency.keep_fresh(&mut self.mask, roi, resumed);
+        }
         let built = self.field.build(&self.mask, roi, n_levels);
         let new_pose = match (&built, kind) {
             (Err(_), _) => pose,
@@ -872,19 +920,30 @@ impl Solver {
                     .rev()
                     .map(|l| (self.field.level(l), self.pins[l as usize]))
                     .collect();
-                lm_pyramid(&levels, pose, &visible, &self.pivot_o, &self.config.lm).pose
+                let report = lm_pyramid(&levels, pose, &visible, &self.pivot_o, &self.config.lm);
+                self.last_lm = Some(report);
+                report.pose
             }
             (Ok(()), StepKind::Search) => {
                 let deltas = axis_steps(&self.pins[0], &pose, &visible, &self.pivot_o, 8);
-                search_step(
+                let out = search_step(
                     self.field.level(0),
                     &self.pins[0],
                     &pose,
                     &visible,
                     &self.pivot_o,
                     &deltas,
-                )
-                .pose
+                );
+                match &self.last_lm {
+                    Some(lm) if lm.n_held > 0 && out.candidate > 0 => {
+                        let k = (out.candidate - 1) / 2;
+                        let sign = if out.candidate % 2 == 1 { 1.0 } else { -1.0 };
+                        let xi = lm.without_held(&(unit_twist(k) * (sign * deltas[k])));
+                        let pivot_c = pose * Point3::from(self.pivot_o);
+                        apply_increment(&pose, &xi, &pivot_c.coords)
+                    }
+                    _ => out.pose,
+                }
             }
         };
         let new_pose = hold_axes(&pose, new_pose, &self.config.held_axes_o);
@@ -1090,6 +1149,7 @@ impl Solver {
                 self.last.lost = false;
                 self.last.visible_fraction = 1.0;
                 self.searching = false;
+                self.had_pose = true;
                 self.motion.reset();
                 self.schedule.restart();
             }
@@ -1111,6 +1171,7 @@ impl Solver {
         self.points.clone_from(&bank.views[v].points_o);
         self.pivot_o = centroid(&self.points);
         self.points_dir_o = Some(bank.views[v].dir_o);
+        self.last_lm = None;
     }
 
     /// Swap S* for the bank's view nearest to `pose` once the object has turned more than ¾ of the
@@ -1207,6 +1268,7 @@ impl TrackerCore {
         core.solver.points_dir_o = Some(view.dir_o);
         core.solver.bank = Some(Arc::new(bank));
         core.solver.searching = true;
+        core.solver.had_pose = false;
         Ok(core)
     }
 
@@ -1217,6 +1279,7 @@ impl TrackerCore {
         s.last.lost = true;
         s.last.confidence = 0.0;
         s.searching = true;
+        s.had_pose = false;
         s.publish();
     }
 

@@ -26,10 +26,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from evservo import _evcore, geometry, trajectories
-from evservo.models import load_object, to_core_mesh
+from evservo.models import load_object, to_core_mesh, trimesh_module
 from evservo.sim.record import START_ROTVEC, background_pose, gt_at, substep_times
 from evservo.tracking import SOLVERS, Tracker
 
@@ -82,7 +81,7 @@ def occluder(case: Case, camera: _evcore.Camera, radius_m: float) -> tuple[_evco
     r_px = _image_radius_px(camera, radius_m, case.distance_m)
     right_edge_px = camera.cx - r_px + 2 * OCCLUDED_SHARE * r_px
     right_edge_m = (right_edge_px - camera.cx) / camera.fx * z
-    plate = trimesh.creation.box((1.0, 1.0, 0.005))
+    plate = trimesh_module().creation.box((1.0, 1.0, 0.005))
     mesh = _evcore.Mesh(np.asarray(plate.vertices), np.asarray(plate.faces), intensity=0.03)
     return mesh, geometry.pose((right_edge_m - 0.5, 0.0, z))
 

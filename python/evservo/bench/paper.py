@@ -254,6 +254,45 @@ def _fmt(values: list[float]) -> str:
     return f"{np.mean(values):.2f} ± {np.std(values, ddof=1):.2f}"
 
 
+def _false_loss_counts(summaries: list[dict]) -> tuple[int, int]:
+    """(right poses flagged lost, right poses) over episodes' ``loss`` blocks (per 1 ms tick); episodes
+    from before the block carried ``right_samples`` are left out."""
+    flagged = right = 0
+    for s in summaries:
+        loss = s.get("loss") or {}
+        n = loss.get("right_samples")
+        if n and loss.get("false_loss_rate") is not None:
+            flagged += round(loss["false_loss_rate"] * n)
+            right += n
+    return flagged, right
+
+
+def _false_loss(summaries: list[dict]) -> str:
+    flagged, right = _false_loss_counts(summaries)
+    return f"{100 * flagged / right:.1f} %" if right else "—"
+
+
+def _false_loss_section(episodes: list[tuple[str, str, EpisodeConfig, dict]]) -> list[str]:
+    """Issue 12's false-loss rate over the suite's episodes: pooled, and the episodes above 1 %."""
+    unique = {key: s for _, key, _, s in episodes}
+    flagged, right = _false_loss_counts(list(unique.values()))
+    if not right:
+        return []
+    worst = sorted(
+        ((s["loss"]["false_loss_rate"], key) for key, s in unique.items() if _false_loss_counts([s])[1]),
+        reverse=True,
+    )
+    over = [f"{key} {100 * rate:.1f} %" for rate, key in worst if rate > 0.01]
+    return [
+        "## False loss (issue 12)",
+        "",
+        f"The tracker's `lost` flag on right poses of a visible object (per 1 ms tick, the loop's view of it): "
+        f"{flagged} of {right} ({100 * flagged / right:.2f} %) over {len(worst)} episodes; bound 1 %. "
+        + (f"Episodes above 1 %: {', '.join(over)}." if over else "No episode above 1 %."),
+        "",
+    ]
+
+
 def _paper(obj: str, z: float, traj: str, tracker: str) -> str:
     ref = PAPER.get((obj, z, traj, tracker))
     if ref is None:
@@ -297,9 +336,9 @@ def report(
         lines.append(
             "| object | Z m | trajectory | m/s | tracker | front-end | ff | runs | completed "
             "| servo pos mm / rot ° | paper pos mm / rot ° | true servo pos mm / rot ° "
-            "| tracking pos mm / rot ° | lag s | updates/s | episodes |"
+            "| tracking pos mm / rot ° | lag s | updates/s | false loss | episodes |"
         )
-        lines.append("|---|---:|---|---:|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---|")
+        lines.append("|---|---:|---|---:|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---|")
         for g in sorted(k for k in groups if k[0] == section):
             rows = groups[g]
             _, obj, z, traj, v, trk, fe, ff = g
@@ -313,7 +352,7 @@ def report(
                 f"| {_paper(obj, z, traj, trk) if not ff and fe == 'scarf' else '—'} "
                 f"| {_fmt(m['gt_servo_pos_rms_mm'])} / {_fmt(m['gt_servo_rot_rms_deg'])} "
                 f"| {_fmt(m['gt_track_pos_rms_mm'])} / {_fmt(m['gt_track_rot_rms_deg'])} "
-                f"| {_fmt(m['lag_s'])} | {_fmt(m['tracker_rate_hz'])} | {links} |"
+                f"| {_fmt(m['lag_s'])} | {_fmt(m['tracker_rate_hz'])} | {_false_loss(rows)} | {links} |"
             )
         lines.append("")
 
@@ -338,7 +377,8 @@ def report(
             lines.append(
                 f"  - {cfg.speed_mps:g} m/s: {verdict}; servo {s['servo_pos_rms_mm']:.1f} mm, lag {s['lag_s']:.3f} s, "
                 f"Panda's fastest joint at {s.get('joint_speed_max_ratio', float('nan')):.2f} of its limit, "
-                f"command cut to the arm's reach {100 * s.get('arm_limited_fraction', float('nan')):.0f} % of the time"
+                f"command cut to the arm's reach {100 * s.get('arm_limited_fraction', float('nan')):.0f} % "
+                f"of the time, false loss {_false_loss([s])}"
             )
     lines.append("")
     pred = [(cfg, s) for sec, _, cfg, s in episodes if sec == "predictor"]
@@ -372,6 +412,7 @@ def report(
             f"{s['camera_rot_mean_deg']:.2f}° (paper 1.89°).",
             "",
         ]
+    lines += _false_loss_section(episodes)
     rates = {}
     for _, _, cfg, s in episodes:
         rates.setdefault(cfg.tracker, []).append(s["tracker_rate_hz"])

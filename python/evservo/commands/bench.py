@@ -9,8 +9,12 @@ from pathlib import Path
 
 SUITES = ("latency", "paper", "objects", "robustness")
 #: Each suite's report files, removed at the start so an interrupted run leaves none of an earlier one.
-REPORTS = {"latency": ("latency.md", "latency.json"), "paper": ("report.md", "results.json"),
-           "objects": ("objects.md", "objects.json"), "robustness": ("robustness.md", "robustness.json")}
+REPORTS = {
+    "latency": ("latency.md", "latency.json"),
+    "paper": ("report.md", "results.json"),
+    "objects": ("objects.md", "objects.json"),
+    "robustness": ("robustness.md", "robustness.json"),
+}
 #: Marks a directory of copied report files as ours to replace on the next run.
 STAMP = "SOURCE.txt"
 

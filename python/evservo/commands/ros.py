@@ -125,6 +125,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _add_servo_parser(rs: argparse._SubParsersAction) -> None:
     from dataclasses import fields
 
+    from evservo.commands.servo_real import add_real_loop_arguments
     from evservo.commands.track import add_viewer_arguments
     from evservo.realloop import RealLoopConfig
 
@@ -140,11 +141,6 @@ def _add_servo_parser(rs: argparse._SubParsersAction) -> None:
     )
     s.add_argument("--model", help="object: built-in name or mesh path (default: the config's)")
     s.add_argument("--init-pose", metavar="x,y,z,qx,qy,qz,qw", help="object in camera at start (default: config's)")
-    s.add_argument(
-        "--desired-pose",
-        metavar="x,y,z,qx,qy,qz,qw",
-        help="object in camera to servo to (default: the config's, else the tracked pose at start)",
-    )
     cam = s.add_mutually_exclusive_group()
     cam.add_argument("--camera", help="camera file (default: the config's intrinsics)")
     cam.add_argument(
@@ -166,14 +162,7 @@ def _add_servo_parser(rs: argparse._SubParsersAction) -> None:
     s.add_argument("--tracker", default="edft+", help="edft+, edopts or edft")
     s.add_argument("--duration", type=float, default=real["duration_s"], help="servoing time, s")
     s.add_argument("--feedforward", action="store_true", help="feed the target's estimated motion forward")
-    s.add_argument("--settle", type=float, help=f"tracking before the arm moves, s (default {real['settle_s']})")
-    s.add_argument("--stiffness", type=float, help=f"k of Eq. 6, 1/s² (default {real['stiffness']})")
-    s.add_argument("--rate", type=float, help=f"control rate, Hz (default {real['rate_hz']})")
-    s.add_argument(
-        "--stale-after",
-        type=float,
-        help=f"watchdog: stop when no fresh pose for this long, s (default {real['stale_after_s']})",
-    )
+    add_real_loop_arguments(s)
     s.add_argument(
         "--start-timeout", type=float, help=f"longest wait for the first events, s (default {real['start_timeout_s']})"
     )

@@ -268,17 +268,21 @@ def run(args: argparse.Namespace) -> int:
 
         given = sim_options_given(args)
         if given:
-            raise ValueError(f"{', '.join(given)} only apply with --sim (the simulated bench), not with --robot")
+            raise ValueError(f"{_only(given)} with --sim (the simulated bench), not with --robot")
         return run_real(args)
     given = [f"--{name.replace('_', '-')}" for name in REAL_ONLY if getattr(args, name) not in (None, False)]
     if given:
-        raise ValueError(f"{', '.join(given)} only apply with --robot (the real loop), not with --sim")
+        raise ValueError(f"{_only(given)} with --robot (the real loop), not with --sim")
     return run_with_report(args, Path("runs") / "servo")
 
 
 #: Options of the real loop only (``--sim`` refuses them).
+def _only(options: list[str]) -> str:
+    return f"{', '.join(options)} only appl{'ies' if len(options) == 1 else 'y'}"
+
+
 REAL_ONLY = ("camera", "model", "config", "init_pose", "desired_pose", "settle", "stiffness", "rate", "dry_run",
-             "replay_speed", "stale_after", "realtime")  # fmt: skip
+             "replay_speed", "stale_after", "max_jump", "max_jump_rad", "realtime")  # fmt: skip
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -293,6 +297,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_episode_arguments(s, speed_mps=0.4)
     from dataclasses import fields
 
+    from evservo.commands.servo_real import add_real_loop_arguments
     from evservo.realloop import RealLoopConfig
 
     real = {f.name: f.default for f in fields(RealLoopConfig)}
@@ -307,20 +312,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="object in camera at start (default: config's, else none: the tracker searches and the arm holds "
         "still until it locks)",
     )
-    r.add_argument("--desired-pose", metavar="x,y,z,qx,qy,qz,qw",
-                   help="object in camera to servo to (default: the tracked pose when servoing starts)")  # fmt: skip
-    r.add_argument(
-        "--settle",
-        type=float,
-        help=f"tracking before the arm moves, s from the first pose (default {real['settle_s']})",
-    )
-    r.add_argument("--stiffness", type=float, help=f"k of Eq. 6, 1/s² (default {real['stiffness']}, the paper's)")
-    r.add_argument("--rate", type=float, help=f"control rate, Hz (default {real['rate_hz']})")
-    r.add_argument(
-        "--stale-after",
-        type=float,
-        help=f"watchdog: stop when no fresh pose for this long, s (default {real['stale_after_s']})",
-    )
+    add_real_loop_arguments(r)
     r.add_argument(
         "--replay-speed",
         type=float,

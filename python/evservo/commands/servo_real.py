@@ -20,7 +20,47 @@ import numpy as np
 
 #: Options of the real loop that set a :class:`~evservo.realloop.RealLoopConfig` field (its defaults hold).
 CONFIG_OPTIONS = {"settle": "settle_s", "stiffness": "stiffness", "rate": "rate_hz", "stale_after": "stale_after_s",
-                  "replay_speed": "speed"}  # fmt: skip
+                  "max_jump": "max_jump_m", "max_jump_rad": "max_jump_rad", "replay_speed": "speed"}  # fmt: skip
+
+
+def add_real_loop_arguments(group: Any) -> None:
+    """The real loop's options that ``servo --robot`` and ``ros servo`` share: the desired pose and the
+    controller's :class:`~evservo.realloop.RealLoopConfig` fields, their defaults in the help texts
+    (``group``: a parser or an argument group)."""
+    from dataclasses import fields
+
+    from evservo.realloop import RealLoopConfig
+
+    real = {f.name: f.default for f in fields(RealLoopConfig)}
+    group.add_argument(
+        "--desired-pose",
+        metavar="x,y,z,qx,qy,qz,qw",
+        help="object in camera to servo to (default: the config's, else the tracked pose when servoing starts)",
+    )
+    group.add_argument(
+        "--settle",
+        type=float,
+        help=f"tracking before the arm moves, s from the first pose (default {real['settle_s']})",
+    )
+    group.add_argument("--stiffness", type=float, help=f"k of Eq. 6, 1/s² (default {real['stiffness']}, the paper's)")
+    group.add_argument("--rate", type=float, help=f"control rate, Hz (default {real['rate_hz']})")
+    group.add_argument(
+        "--stale-after",
+        type=float,
+        help=f"watchdog: stop when no fresh pose for this long, s (default {real['stale_after_s']})",
+    )
+    group.add_argument(
+        "--max-jump",
+        type=float,
+        metavar="M",
+        help=f"watchdog: stop on a pose this far from the prediction, m (default {real['max_jump_m']})",
+    )
+    group.add_argument(
+        "--max-jump-rad",
+        type=float,
+        metavar="RAD",
+        help=f"the same in rotation, rad (default {real['max_jump_rad']})",
+    )
 
 
 class InputError(ValueError):
@@ -132,9 +172,7 @@ def _run_real(args: argparse.Namespace) -> int:
         )
         try:
             with viewing(viewer, tracker, source) as (events, on_cycle):
-                result = run_real_loop(
-                    arm, events, tracker, cfg, desired, progress=print, meta=meta, on_cycle=on_cycle
-                )
+                result = run_real_loop(arm, events, tracker, cfg, desired, progress=print, meta=meta, on_cycle=on_cycle)
         finally:
             arm.close()
     finally:

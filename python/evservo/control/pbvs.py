@@ -175,6 +175,7 @@ class Pbvs:
         v_c_w: np.ndarray,
         T_c_o: np.ndarray | None = None,
         pose_t_s: float | None = None,
+        coast_s: float | None = None,
     ) -> PbvsCommand:
         """One control period at time ``t_s`` (seconds).
 
@@ -182,7 +183,10 @@ class Pbvs:
         frame). ``T_c_o``: the tracker's latest pose, if any, estimated at ``pose_t_s`` (defaults to
         ``t_s``); a pose with the timestamp of the last accepted one is treated as no news. Between
         ``pose_t_s`` and ``t_s`` the camera pose is back-extrapolated with ``v_c_w`` to lift the pose to
-        the world.
+        the world. ``coast_s``: keep servoing on the predicted object motion until the last accepted
+        pose is this old (s) instead of ``stale_after_s`` (:class:`~evservo.control.hold.LossHold`
+        bridging a short loss); a pose arriving within it is gated against the prediction and continues
+        the motion estimate.
         """
         T_w_c = geometry.as_pose(T_w_c, "T_w_c")
         v_c_w = np.asarray(v_c_w, dtype=float).reshape(6)
@@ -194,10 +198,10 @@ class Pbvs:
         f.anchor(t_s)  # start() without a time: the start pose is as of the first update
         reason = ""
         if T_c_o is not None:
-            reason = f.ingest(t_s, T_w_c, v_c_w, T_c_o, t_s if pose_t_s is None else pose_t_s)
+            reason = f.ingest(t_s, T_w_c, v_c_w, T_c_o, t_s if pose_t_s is None else pose_t_s, coast_s)
         assert f.T_w_o is not None
 
-        if f.stale(t_s):
+        if f.stale(t_s, coast_s):
             T_w_ctgt = law.camera_target(f.T_w_o, self.T_c_o_des)
             cmd = self._brake(v_c_w, "rejected" if reason else "stale", reason or "no fresh pose")
             return PbvsCommand(cmd.v_c_w, cmd.a_c_w, law.pose_error(T_w_c, T_w_ctgt), cmd.state, cmd.reason,

@@ -130,15 +130,24 @@ class PoseFilter:
             self.pose_t_s = t_s
             self.motion.update(t_s, self.T_w_o)
 
-    def stale(self, t_s: float) -> bool:
-        """No accepted pose for longer than ``stale_after_s`` at time ``t_s``."""
+    def stale(self, t_s: float, after_s: float | None = None) -> bool:
+        """No accepted pose for longer than ``after_s`` (default ``stale_after_s``) at time ``t_s``."""
         assert self.pose_t_s is not None
-        return t_s - self.pose_t_s > self.stale_after_s
+        return t_s - self.pose_t_s > (self.stale_after_s if after_s is None else after_s)
 
-    def ingest(self, t_s: float, T_w_c: np.ndarray, v_c_w: np.ndarray, T_c_o: np.ndarray, pose_t_s: float) -> str:
+    def ingest(
+        self,
+        t_s: float,
+        T_w_c: np.ndarray,
+        v_c_w: np.ndarray,
+        T_c_o: np.ndarray,
+        pose_t_s: float,
+        fresh_for_s: float | None = None,
+    ) -> str:
         """Check and fold in one tracker pose estimated at ``pose_t_s``, the camera being at ``T_w_c``
         with twist ``v_c_w`` (world frame) at ``t_s``; return '' if accepted (or no news), else why it
-        was refused."""
+        was refused. ``fresh_for_s``: how long the last accepted pose counts as fresh (gate against its
+        prediction, keep the motion estimate) instead of ``stale_after_s``."""
         assert self.pose_t_s is not None and self.T_w_o is not None
         try:
             T_c_o = geometry.as_pose(T_c_o, "T_c_o")
@@ -153,7 +162,7 @@ class PoseFilter:
         # The camera pose when the tracker's pose was valid, back-extrapolated at constant twist.
         T_w_cp = geometry.advance(T_w_c, v_c_w, pose_t_s - t_s)
         T_w_o_raw = T_w_cp @ T_c_o
-        if not self.stale(t_s):
+        if not self.stale(t_s, fresh_for_s):
             P = self.motion.predict(pose_t_s)
             jump_m = geometry.translation_error_m(P, T_w_o_raw)
             jump_rad = geometry.rotation_error_rad(P, T_w_o_raw)

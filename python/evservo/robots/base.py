@@ -43,4 +43,8 @@ def shift_twist(v_a_w: np.ndarray, p_a_w: np.ndarray, p_b_w: np.ndarray) -> np.n
     """Twist of a frame b rigidly attached to frame a, from a's twist: same ω,
     ``v_b = v_a + ω × (p_b − p_a)``. All vectors in world coordinates (m, m/s, rad/s)."""
     v = np.asarray(v_a_w, dtype=float)
-    return np.concatenate([v[:3] + np.cross(v[3:], np.asarray(p_b_w) - np.asarray(p_a_w)), v[3:]])
+    (wx, wy, wz), (rx, ry, rz) = v[3:], np.asarray(p_b_w, dtype=float) - np.asarray(p_a_w, dtype=float)
+    # The cross product written out: np.cross costs ~15 µs on 3-vectors, and this runs every 1 kHz tick.
+    out = v.copy()
+    out[:3] += (wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx)
+    return out

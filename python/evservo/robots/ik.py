@@ -1,4 +1,4 @@
-"""Resolved-rate inverse kinematics as a small bound-constrained QP (qpsolvers + DAQP).
+"""Resolved-rate inverse kinematics as a small bound-constrained QP (DAQP).
 
 For a requested end-effector twist ``v`` (world frame, m/s and rad/s) and the 6×n Jacobian ``J`` of the
 same frame (``v = J q̇``), find the joint velocities ``q̇`` that minimise
@@ -17,10 +17,18 @@ limits do not let all of them through. All constraints are boxes, which DAQP han
 
 from __future__ import annotations
 
+import ctypes
+
+import daqp
 import numpy as np
-import qpsolvers
 
 from evservo.robots.limits import JointLimits
+
+
+def clamp(x: np.ndarray, lo: np.ndarray | float, hi: np.ndarray | float) -> np.ndarray:
+    """``np.clip(x, lo, hi)`` (the same ``min(max(x, lo), hi)``) without its ~4 µs of Python wrappers:
+    the arms' IK and integration clamp several small vectors per 1 kHz tick."""
+    return np.minimum(np.maximum(x, lo), hi)
 
 
 def joint_velocity_bounds(
@@ -43,15 +51,16 @@ def joint_velocity_bounds(
     if qdd is not None:
         # The acceleration can move by at most q⃛_max·dt from where it is; the window stays non-empty
         # because q̈ within ±q̈_max puts q̇ + q̈·dt inside the acceleration window.
-        a_now = np.clip(qdd, -a, a)
+        a_now = clamp(qdd, -a, a)
         w_lo = np.maximum(w_lo, qd + (a_now - limits.qddd_max * dt_s) * dt_s)
         w_hi = np.minimum(w_hi, qd + (a_now + limits.qddd_max * dt_s) * dt_s)
     lb = np.maximum(pv_lo, w_lo)
     ub = np.minimum(pv_hi, w_hi)
     above = lb > ub
-    # The window lies entirely above or below the safe band: clamp to its nearest edge.
-    lb = np.where(above, np.where(w_lo > pv_hi, pv_hi, pv_lo), lb)
-    ub = np.where(above, lb, ub)
+    if above.any():
+        # The window lies entirely above or below the safe band: clamp to its nearest edge.
+        lb = np.where(above, np.where(w_lo > pv_hi, pv_hi, pv_lo), lb)
+        ub = np.where(above, lb, ub)
     return lb, ub
 
 
@@ -82,15 +91,20 @@ def solve_joint_velocities(
         raise ValueError(f"J must be 6x{n}")
     lb, ub = joint_velocity_bounds(q, qd, dt_s, limits, qdd)
     JW = J.T if weights is None else J.T @ weights
-    P = JW @ J + damping * np.eye(n)
+    P = JW @ J
+    diag = P.reshape(-1)[:: n + 1]  # a view (P is a fresh contiguous array): the regularisers add in place
+    diag += damping
     c = -JW @ v
     if q_rest is not None:
-        P += posture_weight * np.eye(n)
+        diag += posture_weight
         c -= posture_weight * posture_gain * (q_rest - q)
-    if np.all(lb == ub):
+    if (lb == ub).all():
         return lb
-    x = qpsolvers.solve_qp(P, c, lb=lb, ub=ub, solver="daqp")
-    if x is None:
+    # DAQP directly, box constraints only, no general rows (what qpsolvers' wrapper hands it, without its
+    # ~10 µs of problem checks and repacking per call: this runs for both arms at up to 1 kHz).
+    no_rows, sense = np.zeros((0, n)), np.zeros(n, dtype=ctypes.c_int)
+    x, _, exitflag, _ = daqp.solve(P, c, no_rows, ub.copy(), lb.copy(), sense)
+    if exitflag <= 0:
         raise RuntimeError("joint-velocity QP failed")
     # The solver's own tolerance can leave the bounds by ~1e-12; the limits are hard.
-    return np.clip(x, lb, ub)
+    return clamp(x, lb, ub)

@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 
 from evservo import geometry
-from evservo.robots.ik import solve_joint_velocities
+from evservo.robots.ik import clamp, solve_joint_velocities
 from evservo.robots.limits import JointLimits
 
 
@@ -104,7 +104,7 @@ class SimArm:
         """Resolve end-effector twist ``v_e_w`` (world frame, (6,)) into a joint-velocity setpoint that
         respects the joint limits over the next ``dt_s`` seconds, reached at their end."""
         v = np.asarray(v_e_w, dtype=float).reshape(6)
-        if not np.all(np.isfinite(v)) or not dt_s > 0:
+        if not np.isfinite(v).all() or not dt_s > 0:
             raise ValueError("twist must be finite and dt_s > 0")
         self.qd_target = solve_joint_velocities(
             self.jacobian(), v, self.joint_positions(), self.qd, dt_s, self.limits, q_rest=self.q_rest, qdd=self.qdd
@@ -133,14 +133,15 @@ class SimArm:
         wanted = (self.qd_target - self.qd) / max(self._target_in_s, h_s)
         self._target_in_s = max(self._target_in_s - h_s, 0.0)
         jerk = L.qddd_max * h_s
-        qdd = np.clip(np.clip(wanted, self.qdd - jerk, self.qdd + jerk), -L.qdd_max, L.qdd_max)
-        qd = np.clip(self.qd + qdd * h_s, -L.qd_max, L.qd_max)
+        qdd = clamp(clamp(wanted, self.qdd - jerk, self.qdd + jerk), -L.qdd_max, L.qdd_max)
+        qd = clamp(self.qd + qdd * h_s, -L.qd_max, L.qd_max)
         self.qdd, self.qd = (qd - self.qd) / h_s, qd
         q = self.data.qpos[self._qadr] + self.qd * h_s
         at_limit = (q <= L.q_min) | (q >= L.q_max)
-        self.qd[at_limit] = 0.0
-        self.qdd[at_limit] = 0.0
-        self.data.qpos[self._qadr] = np.clip(q, L.q_min, L.q_max)
+        if at_limit.any():
+            self.qd[at_limit] = 0.0
+            self.qdd[at_limit] = 0.0
+        self.data.qpos[self._qadr] = clamp(q, L.q_min, L.q_max)
 
     def fk(self, q: np.ndarray) -> np.ndarray:
         """End-effector pose (4×4) at joint positions ``q`` (rad), leaving the simulation untouched.

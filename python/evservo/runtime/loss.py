@@ -13,7 +13,8 @@ cannot be seen. From those:
 - ``relock_ms``: over the moments the object can be seen again (and the start of a run that began
   without a pose), the longest time until the first right pose not flagged lost (inf: never);
 - ``confident_wrong_ms``: the longest spell of wrong poses not flagged lost (and the total);
-- ``false_loss_rate``: the fraction of right poses of a visible object that are flagged lost.
+- ``false_loss_rate``: the fraction of right poses of a visible object that are flagged lost (over
+  ``right_samples`` of them).
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ def loss_metrics(
     lost, wrong, visible = (np.asarray(a, bool) for a in (lost, wrong, visible))
     if not len(t):
         return {"loss_detection_delay_ms": None, "relock_ms": None, "confident_wrong_ms": 0.0,
-                "confident_wrong_total_ms": 0.0, "false_loss_rate": None, "wrong_spells": 0,
+                "confident_wrong_total_ms": 0.0, "false_loss_rate": None, "right_samples": 0, "wrong_spells": 0,
                 "undetected_spells": 0, "lost_fraction": 0.0}  # fmt: skip
     dt_ms = float(np.median(np.diff(t))) * 1e3 if len(t) > 1 else 1.0
     delays, undetected = [], 0
@@ -78,6 +79,7 @@ def loss_metrics(
         "confident_wrong_ms": max((e - s for s, e in cw), default=0) * dt_ms,
         "confident_wrong_total_ms": float(np.sum(wrong & ~lost)) * dt_ms,
         "false_loss_rate": float(np.mean(lost[right])) if right.any() else None,
+        "right_samples": int(np.sum(right)),
         "wrong_spells": len(delays),
         "undetected_spells": undetected,
         "lost_fraction": float(np.mean(lost)),

@@ -20,13 +20,12 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from PIL import Image
 
 from evservo import _evcore, geometry
 from evservo import io as evio
 from evservo.calib.board import Board
-from evservo.models import to_core_mesh
+from evservo.models import to_core_mesh, trimesh_module
 
 __all__ = [
     "BlinkingScreen",
@@ -70,8 +69,8 @@ def screen_mesh(board: Board, margin_squares: float = 1.0, bezel_squares: float 
     image[on_board & ((k + j) % 2 == 0)] = LIT_SRGB
     corners = np.array([[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0]])
     uv = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float)
-    visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(image).convert("RGB"))
-    mesh = trimesh.Trimesh(corners, [[0, 1, 2], [0, 2, 3]], visual=visual, process=False)
+    visual = trimesh_module().visual.TextureVisuals(uv=uv, image=Image.fromarray(image).convert("RGB"))
+    mesh = trimesh_module().Trimesh(corners, [[0, 1, 2], [0, 2, 3]], visual=visual, process=False)
     return to_core_mesh(mesh)
 
 

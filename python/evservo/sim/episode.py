@@ -57,7 +57,7 @@ from evservo.runtime.metrics import estimate_lag_s, rms
 from evservo.runtime.report import plot_motion, write_log, write_summary
 from evservo.runtime.watchdog import WatchdogSpell, spells_from_flags
 from evservo.sim.arms import ArmMeshes
-from evservo.sim.disturb import Disturbances, check_spells
+from evservo.sim.disturb import Disturbances, check_spells, within
 from evservo.sim.scene import DualArmScene
 from evservo.sim.sources import EVENT_SOURCES, RENDERED_SOURCES, EventSource, make_event_source
 from evservo.tracking import FRONTENDS, SOLVERS, Tracker, model_point_set
@@ -112,6 +112,10 @@ class EpisodeConfig:
     object again by itself after a loss (always on with ``start_lost``);
     ``end_on_loss`` False runs the episode to its end through losses, scoring the tracker's ``lost``
     flag (``summary["loss"]``) instead of ending at the first estimate off the truth.
+    The loop's reaction to a loss (:class:`~evservo.control.hold.LossHold`): ``coast_s`` how long
+    after the newest trusted pose it follows the object's predicted motion before braking (0: brake at
+    once); ``false_losses`` spells (seconds) in which the tracker's ``lost`` flag is forced on whatever
+    its pose (a false loss on purpose, to test that reaction; scored like the tracker's own).
     """
 
     object: str = "box"
@@ -152,6 +156,8 @@ class EpisodeConfig:
     start_lost: bool = False
     reacquire: bool = False
     end_on_loss: bool = True
+    coast_s: float = 0.1
+    false_losses: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.tracker not in SOLVERS:
@@ -194,6 +200,9 @@ class EpisodeConfig:
         if self.dropout_s is not None and not self.dropout_s[0] < self.dropout_s[1]:
             raise ValueError("dropout_s must be (start, end) with start < end")
         check_spells(self.occlusions, "occlusions")
+        check_spells(self.false_losses, "false_losses")
+        if not (np.isfinite(self.coast_s) and self.coast_s >= 0):
+            raise ValueError(f"coast_s must be finite and >= 0, got {self.coast_s}")
         check_spells(() if self.noise_s is None else (self.noise_s,), "noise_s")
         if not (np.isfinite(self.noise_rate_hz) and self.noise_rate_hz >= 0):
             raise ValueError(f"noise_rate_hz must be finite and >= 0, got {self.noise_rate_hz}")
@@ -212,7 +221,8 @@ class EpisodeResult:
     ``"tracking lost"`` or ``"arm error: …"``. ``steps``: tracker steps published, per kind.
     ``busy_s``: solver time charged to the clock; ``ingest_busy_s``: producer (ingest) time charged.
     ``lost``: the tracker's flag on that estimate; ``holding``: the loop was not servoing on it
-    (:class:`~evservo.control.hold.LossHold` holding, searching or ramping back in); ``seen``: the
+    (:class:`~evservo.control.hold.LossHold` holding, searching or ramping back in); ``coasting``: it
+    followed the object's predicted motion through a loss (LossHold coasting); ``seen``: the
     object's events reached the tracker and at least half of it was in the image.
     """
 
@@ -238,6 +248,7 @@ class EpisodeResult:
     lost: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     holding: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     seen: np.ndarray = field(default_factory=lambda: np.ones(0, bool))
+    coasting: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     ingest_busy_s: float = 0.0
 
     @property
@@ -376,19 +387,27 @@ def _primed_source(
     return source
 
 
-def _view_test(camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, seed: int) -> Callable[[np.ndarray], bool]:
-    """``in_view(T_c_o)``: at least half of the object's edge points (200 of them) are in front of the
-    camera and project into the image."""
+def _view_test(
+    camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, seed: int, chunk: int = 2000
+) -> Callable[[np.ndarray], np.ndarray]:
+    """``in_view(T_c_o)``: per pose of a stack (N, 4, 4), whether at least half of the object's edge
+    points (200 of them) are in front of the camera and project into the image. Run once over the
+    episode's ticks (``chunk`` poses at a time) rather than once per tick: it is the same arithmetic
+    per pose, without the per-call overhead."""
     points = model_point_set(camera, obj, T_c_o0, n_points=200, seed=seed)
 
-    def in_view(T_c_o: np.ndarray) -> bool:
-        p = points @ T_c_o[:3, :3].T + T_c_o[:3, 3]
-        front = p[:, 2] > 1e-3
-        if np.mean(front) < 0.5:
-            return False
-        uv = camera.project(p[front])
-        inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
-        return bool(np.sum(inside) >= 0.5 * len(points))
+    def in_view(T_c_o: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(T_c_o), bool)
+        for a in range(0, len(T_c_o), chunk):
+            T = T_c_o[a : a + chunk]
+            p = points @ T[:, :3, :3].transpose(0, 2, 1) + T[:, None, :3, 3]  # (n, 200, 3), camera frame
+            front = p[..., 2] > 1e-3
+            uv = camera.project(p[front])
+            inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+            row = np.nonzero(front)[0]  # the pose of each projected point
+            n_inside = np.bincount(row[inside], minlength=len(T))
+            out[a : a + chunk] = (np.mean(front, axis=1) >= 0.5) & (n_inside >= 0.5 * len(points))
+        return out
 
     return in_view
 
@@ -440,7 +459,7 @@ def run_episode(
         lookahead_s=cfg.panda_latency_s,
         predict_accel=cfg.predictor == "acceleration",
     )
-    hold = LossHold(pbvs)
+    hold = LossHold(pbvs, coast_s=cfg.coast_s)
     if cfg.start_lost:
         hold.search()  # the desired pose is captured once the tracker has locked
     else:
@@ -468,9 +487,14 @@ def run_episode(
         "joint_speed_ratio": np.zeros(n),
         "lost": np.zeros(n, bool),
         "holding": np.zeros(n, bool),
+        "coasting": np.zeros(n, bool),
         "seen": np.zeros(n, bool),
     }
     T_c_o_true = [T_c_o0]  # per tick, to score an estimate against the truth at its own time
+    qd_max = scene.panda.limits.qd_max
+    # The poses of the current tick: read once after each physics step (nothing moves the arms between
+    # a step and the next tick's commands), not again by every user.
+    T_w_c, T_w_o = scene.T_w_c(), scene.T_w_o()
     v_cmd, watchdog, arm_limited, mode = np.zeros(6), False, False, hold.mode
     last_seq, ended, lost_at, n_events, done = 0, "duration", None, 0, 0
     with StopOnInterrupt() as stop:
@@ -485,20 +509,20 @@ def run_episode(
                 panda.deliver(t_us)
                 if k % ur_every == 0:
                     follower.command(t)
-                T_w_c, T_w_e = scene.T_w_c(), scene.panda.T_w_e()
+                T_w_e = scene.panda.T_w_e()
                 v_cam = shift_twist(scene.panda.twist_w(), T_w_e[:3, 3], T_w_c[:3, 3])
                 est = tracker.latest(t_us)
                 # The start estimate (seq 0) reads lost before any update: a loss only without a start pose.
-                lost = est.lost and (est.seq > 0 or cfg.start_lost)
+                lost = (est.lost and (est.seq > 0 or cfg.start_lost)) or within(t, cfg.false_losses)
                 if k % ctrl_every == 0:
                     # A pose counts once, and not at all when the tracker flags itself lost.
-                    fresh = est.seq != last_seq and not est.lost
+                    fresh = est.seq != last_seq and not (est.lost or lost)
                     last_seq = est.seq
                     cmd = hold.update(t, T_w_c, v_cmd, est.T_c_o if fresh else None, est.t_us * 1e-6, lost)
                     v_cmd, watchdog, mode = cmd.v_c_w, cmd.watchdog, cmd.mode
                     arm_limited = cmd.pbvs is not None and cmd.pbvs.arm_limited
                 if k % panda_every == 0:
-                    if (watchdog or mode in ("holding", "searching")) and not np.any(v_cmd):
+                    if (watchdog or mode in ("holding", "searching")) and not v_cmd.any():
                         panda.stop()  # braked to rest: hold still rather than keep resolving a zero twist
                     else:
                         panda.command_twist(shift_twist(v_cmd, T_w_c[:3, 3], T_w_e[:3, 3]), cfg.panda_period_s)
@@ -513,23 +537,24 @@ def run_episode(
             ):
                 ended, lost_at = "tracking lost", t
                 break
-            rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = scene.T_w_o(), T_w_c, T_est
+            rec["T_w_o"][k], rec["T_w_c"][k], rec["T_c_o_est"][k] = T_w_o, T_w_c, T_est
             rec["est_t_s"][k], rec["v_cmd_w"][k], rec["v_cam_w"][k] = est.t_us * 1e-6, v_cmd, v_cam
             rec["watchdog"][k], rec["arm_limited"][k] = watchdog, arm_limited
-            rec["joint_speed_ratio"][k] = np.max(np.abs(scene.panda.qd) / scene.panda.limits.qd_max)
-            rec["lost"][k], rec["holding"][k] = lost, mode != "servoing"
-            rec["seen"][k] = disturb.seen(t) and in_view(T_c_o_true[k])
+            rec["joint_speed_ratio"][k] = (np.abs(scene.panda.qd) / qd_max).max()
+            rec["lost"][k], rec["holding"][k] = lost, mode not in ("servoing", "coasting")
+            rec["coasting"][k] = mode == "coasting"
+            rec["seen"][k] = disturb.seen(t)  # and in view: after the loop, for all ticks at once
             done = k + 1
 
             scene.step(1)
             t_next = t_us + TICK_US
-            T_now = scene.T_c_o()
+            T_w_c, T_w_o = scene.T_w_c(), scene.T_w_o()
+            T_now = geometry.inv(T_w_c) @ T_w_o
             T_c_o_true.append(T_now)
             T_shown = disturb.source_pose(source, t_next, T_now)
             if arms is None:
-                events = source.events_until(t_next, T_shown, scene.T_w_c())
+                events = source.events_until(t_next, T_shown, T_w_c)
             else:
-                T_w_c = scene.T_w_c()
                 events = source.events_until(t_next, T_shown, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
             events = disturb.events(t_us, t_next, events)
             n_events += len(events)
@@ -544,6 +569,7 @@ def run_episode(
                 progress(100)
     if progress is not None and done % 100:
         progress(done % 100)
+    rec["seen"][:done] &= in_view(np.asarray(T_c_o_true[:done]).reshape(-1, 4, 4))
 
     result = EpisodeResult(
         config=cfg,
@@ -616,12 +642,14 @@ def loss_summary(result: EpisodeResult, pos_err_m: np.ndarray, rot_err_rad: np.n
     """How the tracker's ``lost`` flag did (:func:`evservo.runtime.loss.loss_metrics`) given each
     tick's tracking error (m, rad) and true depth (m): a pose is wrong beyond the issue's bounds, while
     the object is not seen, or always when the tracker's model is not the object's. Adds the time the
-    loop spent not servoing (holding, searching or ramping back in)."""
+    loop spent not servoing (holding, searching or ramping back in) and the time it followed the
+    object's predicted motion through a loss (coasting)."""
     r, cfg = result, result.config
     mismatch = cfg.model is not None and cfg.model != cfg.object
     wrong = wrong_pose(pos_err_m, rot_err_rad, z_m) | ~r.seen | mismatch
     out = loss_metrics(r.t_s, r.lost, wrong, r.seen, started_lost=cfg.start_lost)
     out["holding_s"] = float(np.sum(r.holding)) * TICK_US * 1e-6
+    out["coasting_s"] = float(np.sum(r.coasting)) * TICK_US * 1e-6
     return out
 
 

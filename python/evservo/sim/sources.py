@@ -141,19 +141,25 @@ class RenderedSource:
         batches = []
         for s in np.linspace(0.0, 1.0, n + 1)[1:]:
             t = t0 + round(s * (t1 - t0))
-            occ_s = None if occ is None else geometry.interpolate(self.occ, occ, s)
             batches.append(
                 self.sim.advance(
-                    geometry.interpolate(self.T_c_o, T_c_o, s),
+                    _between(self.T_c_o, T_c_o, s),
                     t,
-                    T_c_bg=geometry.interpolate(self.T_c_bg, T_c_bg, s),
-                    occluders=occ_s,
+                    T_c_bg=_between(self.T_c_bg, T_c_bg, s),
+                    occluders=None if occ is None else _between(self.occ, occ, s),
                 )
             )
         self.t_us, self.T_c_o, self.T_c_bg, self.occ = t1, T_c_o, T_c_bg, occ
         events = np.concatenate(batches)
         # The sensor stamps events in [t0, t1]; the interval handed out is half open.
         return events[events["t"] < t1]
+
+
+def _between(T_a: np.ndarray, T_b: np.ndarray, s: float) -> np.ndarray:
+    """:func:`evservo.geometry.interpolate`, exactly ``T_b`` at the end of the step (``s`` = 1, the only
+    sub-step while nothing moves half a pixel per tick): the slerp returns it there only up to rounding,
+    through scipy's rotation conversions, the wrapper's largest cost per tick."""
+    return T_b if s == 1.0 else geometry.interpolate(T_a, T_b, s)
 
 
 EVENT_SOURCES: dict[str, SourceFactory] = {
