@@ -265,16 +265,29 @@ class Tracker:
         ingested and dropped. Raises ``ValueError`` for a bad batch (nothing of it is ingested)."""
         self._core.push(as_event_cd(events))
 
-    def replay(self, path: str | os.PathLike, batch_us: int = 1000, speed: float | None = 1.0) -> _evcore.Replay:
-        """Push a Prophesee RAW file into the running tracker from a Rust thread: decoded, cut into
-        time slices of ``batch_us`` (µs; the slices of ``evservo.io.open_events``, with times that
-        step back clamped to the newest one) and ingested as ``push`` does, without the GIL or any
-        Python per batch. ``speed`` 1.0 replays in real time, 2.0 twice as fast, None as fast as
-        ingest takes it. Returns a :class:`~evservo._evcore.Replay`: ``wait(timeout)`` (raises the
-        replay's error: ``DecodeError`` for a corrupt file; Ctrl-C stops it), ``stop()``,
-        ``running``, ``stats()``; a ``with`` block stops it on exit. Raises ``FileNotFoundError``,
-        ``DecodeError`` for an unreadable header, ``RuntimeError`` unless the tracker is running."""
-        return _evcore.replay_into(self._core, os.fspath(path), batch_us, speed)
+    def replay(
+        self, path: str | os.PathLike, batch_us: int = 1000, speed: float | None = 1.0, *, mode: str = "push",
+        until_us: int | None = None, snapshots_at: Iterable[int] = (),
+    ) -> _evcore.Replay:  # fmt: skip
+        """Feed a Prophesee RAW file to the tracker from a Rust thread: decoded, cut into time slices
+        of ``batch_us`` (µs; the slices of ``evservo.io.open_events``, with times that step back
+        clamped to the newest one, none starting after ``until_us``), without the GIL or any Python
+        per batch. ``speed`` 1.0 replays in real time, 2.0 twice as fast, None as fast as the
+        tracker takes it.
+
+        ``mode="push"``: into the running tracker, ingested as ``push`` does. ``mode="update"``: the
+        tracker is stopped and each slice (empty ones too) is one synchronous ``update``, so the
+        poses are exactly those of calling ``update`` per slice; ``Replay.updates()`` returns
+        (slice end µs, events, Estimate) for every update so far and ``Replay.snapshots()`` the
+        field and projected model after the slices numbered in ``snapshots_at`` (0 = the first).
+
+        Returns a :class:`~evservo._evcore.Replay`: ``wait(timeout)`` (raises the replay's error:
+        ``DecodeError`` for a corrupt file; Ctrl-C stops it), ``stop()``, ``running``, ``stats()``;
+        a ``with`` block stops it on exit. Raises ``FileNotFoundError``, ``DecodeError`` for an
+        unreadable header, ``RuntimeError`` unless the tracker is running (push) or stopped (update)."""
+        return _evcore.replay_into(
+            self._core, os.fspath(path), batch_us, speed, mode=mode, until_us=until_us, snapshots_at=list(snapshots_at)
+        )
 
     def latest(self) -> Estimate:
         """The newest estimate, without any lock (safe from any thread, also during start/stop)."""

@@ -26,6 +26,8 @@ pub struct TimeSlices<R: Read> {
     /// Newest time handed out so far.
     t_max: Option<i64>,
     clamped: u64,
+    /// No slice starting after this time (µs) is handed out.
+    until_us: i64,
 }
 
 impl<R: Read> TimeSlices<R> {
@@ -41,7 +43,19 @@ impl<R: Read> TimeSlices<R> {
             end_us: None,
             t_max: None,
             clamped: 0,
+            until_us: i64::MAX,
         })
+    }
+
+    /// End the slices with the one holding `t_us` (µs): no slice starting after it is handed out.
+    pub fn until(mut self, t_us: i64) -> Self {
+        self.until_us = t_us;
+        self
+    }
+
+    /// Length of the slices (µs).
+    pub fn batch_us(&self) -> i64 {
+        self.batch_us
     }
 
     /// Events stamped with a newer time because they stepped back.
@@ -60,7 +74,7 @@ impl<R: Read> TimeSlices<R> {
                 Some(first) => (first.div_euclid(self.batch_us) + 1) * self.batch_us,
             },
         };
-        if !self.reader.read_until_t(end, out)? {
+        if end - self.batch_us > self.until_us || !self.reader.read_until_t(end, out)? {
             return Ok(None);
         }
         self.end_us = Some(end + self.batch_us);
@@ -100,14 +114,15 @@ pub struct ReplayProgress {
     pub end_us: std::sync::atomic::AtomicI64,
 }
 
-/// Feeds every slice of `slices` to `consume` at `pace` until the file ends, `stop` is set, or
-/// `consume` or the decoder fails (that error is returned). Empty slices are not fed.
+/// Feeds every slice of `slices` with its end time (µs) to `consume` at `pace` until the slices
+/// end, `stop` is set, or `consume` or the decoder fails (that error is returned). Empty slices
+/// inside the recording are fed too (a consumer that updates per slice updates on them as well).
 pub fn replay<R: Read>(
     mut slices: TimeSlices<R>,
     pace: Pace,
     stop: &AtomicBool,
     progress: &ReplayProgress,
-    mut consume: impl FnMut(&[EventCd]) -> Result<()>,
+    mut consume: impl FnMut(&[EventCd], i64) -> Result<()>,
 ) -> Result<()> {
     if let Pace::Speed(s) = pace {
         if !(s.is_finite() && s > 0.0) {
@@ -130,9 +145,7 @@ pub fn replay<R: Read>(
                 break;
             }
         }
-        if !batch.is_empty() {
-            consume(&batch)?;
-        }
+        consume(&batch, end)?;
         progress.slices.fetch_add(1, Ordering::Relaxed);
         progress
             .events
@@ -214,21 +227,39 @@ mod tests {
         };
         let (stop, progress) = (AtomicBool::new(false), ReplayProgress::default());
         let mut fed = Vec::new();
-        replay(open(), Pace::AsFastAsPossible, &stop, &progress, |b| {
-            fed.extend_from_slice(b);
+        let mut ends = Vec::new();
+        replay(
+            open(),
+            Pace::AsFastAsPossible,
+            &stop,
+            &progress,
+            |b, end| {
+                fed.extend_from_slice(b);
+                ends.push(end);
+                Ok(())
+            },
+        )
+        .unwrap();
+        assert_eq!(fed, events);
+        assert_eq!(ends, (1..=50).map(|k| k * 1000).collect::<Vec<_>>());
+        assert_eq!(progress.events.load(Ordering::Relaxed), 5000);
+        // Cut after the slice holding 20 ms: the slices [0, 21 ms).
+        let mut n = 0;
+        let until = open().until(20_000);
+        replay(until, Pace::AsFastAsPossible, &stop, &progress, |b, _| {
+            n += b.len();
             Ok(())
         })
         .unwrap();
-        assert_eq!(fed, events);
-        assert_eq!(progress.events.load(Ordering::Relaxed), 5000);
+        assert_eq!(n, 2100);
         // A consumer error ends the replay with that error; a set stop flag feeds nothing.
-        let err = replay(open(), Pace::Speed(1.0), &stop, &progress, |_| {
+        let err = replay(open(), Pace::Speed(1.0), &stop, &progress, |_, _| {
             Err(Error::Tracking("full".into()))
         });
         assert!(matches!(err, Err(Error::Tracking(_))));
         stop.store(true, Ordering::Release);
         let mut n = 0;
-        replay(open(), Pace::Speed(1.0), &stop, &progress, |b| {
+        replay(open(), Pace::Speed(1.0), &stop, &progress, |b, _| {
             n += b.len();
             Ok(())
         })

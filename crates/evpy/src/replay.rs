@@ -1,16 +1,20 @@
-//! `evservo._evcore.replay_into` / `Replay`: a RAW file decoded and pushed into a running
-//! tracker's ingest on a Rust thread, without the GIL or any Python per batch.
+//! `evservo._evcore.replay_into` / `Replay`: a RAW file decoded and fed to a tracker on a Rust
+//! thread, without the GIL or any Python per batch: pushed into a running tracker's ingest, or one
+//! synchronous update per slice of a stopped one (deterministic, every estimate kept).
 
 use crate::errors::to_py;
-use crate::tracker::{PyTracker, State};
+use crate::tracker::{PyEstimate, PyTracker, State};
 use evcore::io::RawReader;
 use evcore::replay::{replay, Pace, ReplayProgress, TimeSlices};
-use evcore::Error;
-use pyo3::exceptions::PyRuntimeError;
+use evcore::tracker::{Estimate, TrackerCore};
+use evcore::{Error, Roi};
+use numpy::{IntoPyArray, PyArray2};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use std::collections::BTreeSet;
 use std::fs::File;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -18,12 +22,34 @@ use std::time::{Duration, Instant};
 /// How often a waiting caller looks for Ctrl-C.
 const SIGNAL_POLL: Duration = Duration::from_millis(50);
 
+/// One synchronous update of an `update` replay: the slice's end (µs), its event count and the
+/// estimate after it.
+type Update = (i64, usize, Estimate);
+
+/// The full-resolution field and the projected model after an update (for overlays).
+struct Snapshot {
+    end_us: i64,
+    field: Vec<f32>,
+    roi: Roi,
+    points: Vec<(f32, f32)>,
+}
+
+/// What an `update` replay keeps for the caller.
+#[derive(Default)]
+struct UpdateLog {
+    updates: Mutex<Vec<Update>>,
+    snapshots: Mutex<Vec<Snapshot>>,
+    /// Wall time spent in the updates (ns).
+    update_ns: AtomicU64,
+}
+
 /// A replay running on its own thread. Stopped (and joined) by `stop()`, on leaving a `with`
 /// block, or when garbage-collected.
 #[pyclass(name = "Replay", module = "evservo._evcore", frozen)]
 pub struct PyReplay {
     stop: Arc<AtomicBool>,
     progress: Arc<ReplayProgress>,
+    log: Arc<UpdateLog>,
     handle: Mutex<Option<JoinHandle<evcore::Result<()>>>>,
     /// The thread's error once joined, handed to the next `wait()`.
     error: Mutex<Option<Error>>,
@@ -121,7 +147,56 @@ impl PyReplay {
         d.set_item("clamped", p.clamped.load(Ordering::Relaxed))?;
         let end = p.end_us.load(Ordering::Acquire);
         d.set_item("end_us", (end != i64::MIN).then_some(end))?;
+        d.set_item(
+            "update_seconds",
+            self.log.update_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+        )?;
         Ok(d)
+    }
+
+    /// Mode "update": every update so far as (slice end µs, events in the slice, Estimate).
+    fn updates(&self) -> Vec<(i64, usize, PyEstimate)> {
+        lock(&self.log.updates)
+            .iter()
+            .map(|&(end, n, inner)| (end, n, PyEstimate { inner }))
+            .collect()
+    }
+
+    /// Mode "update": after each slice of `snapshots_at`, (slice end µs, full-resolution field
+    /// (h, w) float32, (x0, y0) of its region, model points projected (N, 2) rectified pixels).
+    #[allow(clippy::type_complexity)]
+    fn snapshots<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<
+        Vec<(
+            i64,
+            Bound<'py, PyArray2<f32>>,
+            (u32, u32),
+            Bound<'py, PyArray2<f32>>,
+        )>,
+    > {
+        lock(&self.log.snapshots)
+            .iter()
+            .map(|s| {
+                let (w, h) = (s.roi.width as usize, s.roi.height as usize);
+                let field = numpy::ndarray::Array2::from_shape_vec((h, w), s.field.clone())
+                    .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+                let pts = numpy::ndarray::Array2::from_shape_fn((s.points.len(), 2), |(i, j)| {
+                    if j == 0 {
+                        s.points[i].0
+                    } else {
+                        s.points[i].1
+                    }
+                });
+                Ok((
+                    s.end_us,
+                    field.into_pyarray(py),
+                    (s.roi.x0, s.roi.y0),
+                    pts.into_pyarray(py),
+                ))
+            })
+            .collect()
     }
 
     fn __enter__(slf: Py<Self>) -> Py<Self> {
@@ -156,23 +231,72 @@ impl Drop for PyReplay {
     }
 }
 
-/// replay_into(tracker, path, batch_us=1000, speed=1.0) -> Replay: decode the RAW file at
-/// `path` and push it in time slices of `batch_us` (clamped to non-decreasing time) into the
-/// running `tracker` from a new thread; `speed` 1.0 is real time, None as fast as ingest takes
-/// it. The file's header is read here (FileNotFoundError, DecodeError); the tracker must be
-/// running (RuntimeError).
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// One synchronous update on `batch` (ingest + one solver cycle, as `Tracker.update`), logged.
+fn update_and_log(
+    core: &mut TrackerCore,
+    batch: &[evcore::EventCd],
+    end_us: i64,
+    snapshot: bool,
+    log: &UpdateLog,
+) -> evcore::Result<()> {
+    let started = Instant::now();
+    let est = core.update(batch)?;
+    log.update_ns
+        .fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
+    lock(&log.updates).push((end_us, batch.len(), est));
+    if snapshot {
+        let level = core.field_level0();
+        lock(&log.snapshots).push(Snapshot {
+            end_us,
+            field: level.value.clone(),
+            roi: level.roi,
+            points: core.projected_points(),
+        });
+    }
+    Ok(())
+}
+
+/// replay_into(tracker, path, batch_us=1000, speed=1.0, mode="push", until_us=None,
+/// snapshots_at=[]) -> Replay: decode the RAW file at `path`, cut it into time slices of
+/// `batch_us` (clamped to non-decreasing time; none starting after `until_us`) and feed them to
+/// `tracker` from a new thread; `speed` 1.0 is real time, None as fast as the tracker takes it.
+/// mode "push": into the running tracker's ingest (RuntimeError unless it runs). mode "update":
+/// one synchronous update per slice, empty slices included, of the stopped tracker (RuntimeError
+/// while it runs), exactly as `update` per slice would; every estimate is kept (`updates()`), and
+/// the field and projected model after the slices numbered in `snapshots_at` (`snapshots()`).
+/// The file's header is read here (FileNotFoundError, DecodeError).
 #[pyfunction]
-#[pyo3(signature = (tracker, path, batch_us=1000, speed=Some(1.0)))]
+#[pyo3(signature = (tracker, path, batch_us=1000, speed=Some(1.0), mode="push", until_us=None, snapshots_at=Vec::new()))]
+#[allow(clippy::too_many_arguments)]
 fn replay_into(
     py: Python<'_>,
     tracker: &PyTracker,
     path: std::path::PathBuf,
     batch_us: i64,
     speed: Option<f64>,
+    mode: &str,
+    until_us: Option<i64>,
+    snapshots_at: Vec<usize>,
 ) -> PyResult<PyReplay> {
+    let update = match mode {
+        "push" => false,
+        "update" => true,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "mode must be 'push' or 'update', got {other:?}"
+            )))
+        }
+    };
     let file = File::open(&path)?;
     let reader = py.detach(|| RawReader::new(file)).map_err(to_py)?;
-    let slices = TimeSlices::new(reader, batch_us).map_err(to_py)?;
+    let mut slices = TimeSlices::new(reader, batch_us).map_err(to_py)?;
+    if let Some(t) = until_us {
+        slices = slices.until(t);
+    }
     let pace = match speed {
         None => Pace::AsFastAsPossible,
         Some(s) if s.is_finite() && s > 0.0 => Pace::Speed(s),
@@ -183,32 +307,42 @@ fn replay_into(
         }
     };
     let state = Arc::clone(&tracker.state);
-    let running = py.detach(|| {
-        matches!(
-            *state.lock().unwrap_or_else(PoisonError::into_inner),
-            State::Threaded(_)
-        )
-    });
-    if !running {
-        return Err(PyRuntimeError::new_err(
-            "replay_into needs a running tracker: call start() first",
-        ));
+    let running = py.detach(|| matches!(*lock(&state), State::Threaded(_)));
+    if running == update {
+        return Err(PyRuntimeError::new_err(if update {
+            "replay_into(mode='update') needs a stopped tracker: call stop() first"
+        } else {
+            "replay_into needs a running tracker: call start() first"
+        }));
     }
     let stop = Arc::new(AtomicBool::new(false));
     let progress = Arc::new(ReplayProgress::default());
     progress.end_us.store(i64::MIN, Ordering::Relaxed);
+    let log = Arc::new(UpdateLog::default());
+    let snapshots_at: BTreeSet<usize> = snapshots_at.into_iter().collect();
     let handle = {
-        let (stop, progress) = (Arc::clone(&stop), Arc::clone(&progress));
+        let (stop, progress, log) = (Arc::clone(&stop), Arc::clone(&progress), Arc::clone(&log));
         std::thread::Builder::new()
             .name("evservo-replay".into())
             .spawn(move || {
-                replay(slices, pace, &stop, &progress, |batch| {
-                    match &mut *state.lock().map_err(|_| {
+                let mut k = 0usize;
+                replay(slices, pace, &stop, &progress, |batch, end_us| {
+                    let mut state = state.lock().map_err(|_| {
                         Error::Tracking("the tracker is unusable after an internal error".into())
-                    })? {
-                        State::Threaded(t) => t.push(batch),
-                        _ => Err(Error::Tracking(
+                    })?;
+                    match (&mut *state, update) {
+                        (State::Threaded(_), false) if batch.is_empty() => Ok(()),
+                        (State::Threaded(t), false) => t.push(batch),
+                        (State::Sync(core), true) => {
+                            k += 1;
+                            let snap = snapshots_at.contains(&(k - 1));
+                            update_and_log(core, batch, end_us, snap, &log)
+                        }
+                        (_, false) => Err(Error::Tracking(
                             "the tracker was stopped while a replay was pushing into it".into(),
+                        )),
+                        (_, true) => Err(Error::Tracking(
+                            "the tracker was started while a replay was updating it".into(),
                         )),
                     }
                 })
@@ -218,6 +352,7 @@ fn replay_into(
     Ok(PyReplay {
         stop,
         progress,
+        log,
         handle: Mutex::new(Some(handle)),
         error: Mutex::new(None),
     })

@@ -22,7 +22,7 @@ use std::sync::{Arc, Mutex};
 /// One pose estimate. `T_c_o` is the object in the camera optical frame (4×4, metres).
 #[pyclass(name = "Estimate", module = "evservo._evcore", frozen)]
 pub struct PyEstimate {
-    inner: Estimate,
+    pub(crate) inner: Estimate,
 }
 
 #[pymethods]

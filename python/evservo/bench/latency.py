@@ -20,11 +20,19 @@ put several events on every pixel per second and bury any object under any front
 - 5 %: uniform sensor noise.
 Above what ingest can take within its share of the producer's core, ``push`` keeps a uniform
 fraction of each batch; the dropped fraction is reported.
+
+Priority "high" puts both threads a rig would give real-time priority at SCHED_FIFO: the solver
+(``Tracker.start(priority="high")``) and the producer, i.e. the replay loop that pushes (on a rig,
+the camera driver's thread). Ingest runs inside ``push`` on the producer's thread, so a producer
+preempted in the middle of a push by the machine's other load delays its events as much as a late
+solver would.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -39,7 +47,7 @@ import evservo
 from evservo import geometry, trajectories
 from evservo.events import EVENT_CD
 from evservo.synth import edge_events
-from evservo.tracking import Tracker, model_point_set
+from evservo.tracking import FIFO_PRIORITY, Tracker, model_point_set
 
 #: Rates of the full suite (Mev/s) and the event time replayed at each (s): long enough for
 #: hundreds of updates, short enough that the pre-generated stream fits in memory.
@@ -158,6 +166,25 @@ def _replay(trk: Tracker, batches, batch_us: int, latencies: list, ages: list):
     return start, trk.latest(), seen
 
 
+@contextlib.contextmanager
+def _producer_priority(priority: str):
+    """Run the block with the calling thread at SCHED_FIFO (just below the solver) when ``priority``
+    is "high" and the OS permits it, and restore its scheduling after."""
+    if priority != "high" or not hasattr(os, "sched_setscheduler"):
+        yield
+        return
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY - 1))
+    except PermissionError:
+        yield
+        return
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, policy, param)
+
+
 def measure_latency(
     rate_mev_s: float,
     solver: str = "edft+",
@@ -177,7 +204,8 @@ def measure_latency(
         with trk, warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # the row reports the priority in effect
             priority = trk.start(priority=priority)
-            start, est, seen = _replay(trk, batches, batch_us, latencies, ages)
+            with _producer_priority(priority):
+                start, est, seen = _replay(trk, batches, batch_us, latencies, ages)
             wall = time.perf_counter() - start
     finally:
         for hog in hogs:

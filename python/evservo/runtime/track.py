@@ -2,8 +2,11 @@
 recording has it (simulated recordings of :mod:`evservo.sim.record`).
 
 Events are fed to the synchronous tracker in time slices of ``batch_us`` (1 ms), one
-``Tracker.update`` per slice. Outputs: ``poses.csv`` (one row per update), ``summary.json``,
-``overlay.png`` (S* reprojected over the distance field at four instants) and ``error.png``.
+``Tracker.update`` per slice. A Prophesee RAW file (without a viewer) is decoded, sliced and
+tracked in a Rust thread (``Tracker.replay(mode="update")``: the same updates, without Python per
+slice); other formats go through ``evservo.io.open_events`` here. Outputs: ``poses.csv`` (one row
+per update), ``summary.json``, ``overlay.png`` (S* reprojected over the distance field at four
+instants) and ``error.png``.
 
 Time that steps backwards (real recordings, e.g. EVT3 files where the time base wraps or the
 sensor reorders slightly): the tracker needs a non-decreasing stream, so each event older than the
@@ -13,7 +16,9 @@ reported as ``n_time_clamped``.
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +52,7 @@ def track_file(
     update; the caller closes it. ``topic`` picks the event topic of a ROS bag."""
     from tqdm import tqdm
 
-    from evservo import bags, events, io
+    from evservo import bags, io
     from evservo.sim.record import gt_at, is_recording, load_recording
     from evservo.tracking import Tracker
 
@@ -77,40 +82,22 @@ def track_file(
         t_last = min(t_last, t_first + int(max_seconds * 1e6))
     n_slices = max(1, (t_last - t_first) // batch_us + 1)
     snap_at = set(np.linspace(0, n_slices - 1, 4).round().astype(int).tolist())
-    snaps, ts, Ts, lost, counts = [], [], [], [], []
-    n_clamped, t_max, solve_s = 0, None, 0.0
-    end = (t_first // batch_us + 1) * batch_us
     bar = tqdm(total=n_slices, unit="batch", desc=f"{solver:>7}", disable=not progress, leave=False)
-    interrupted = False
     with StopOnInterrupt() as stop:
-        for k, ev in enumerate(io.open_events(path, delta_t_us=batch_us, topic=topic)):
-            if stop.requested:  # Ctrl-C: keep what was tracked, marked as interrupted
-                interrupted = True
-                break
-            if end - batch_us > t_last:
-                break
-            ev, n, t_max = events.clamp_time(ev, t_max)
-            n_clamped += n
-            started = time.perf_counter()
-            est = trk.update(ev)
-            solve_s += time.perf_counter() - started
-            if viewer is not None:
-                viewer.track(end, ev, est, trk, gt_at(rec.gt_t_us, rec.gt_T, np.array([end]))[0] if rec else None)
-            ts.append(end)
-            Ts.append(est.T_c_o)
-            lost.append(est.lost)
-            counts.append(len(ev))
-            if k in snap_at:
-                field, origin = trk.field()
-                snaps.append((end, field.copy(), origin, trk.projected_points().copy()))
-            end += batch_us
-            bar.update()
+        if path.suffix.lower() == ".raw" and viewer is None:
+            run = _replay_slices(trk, path, batch_us, t_last, snap_at, bar, stop)
+        else:
+            first_end = (t_first // batch_us + 1) * batch_us
+            gt = (lambda t: gt_at(rec.gt_t_us, rec.gt_T, np.array([t]))[0]) if rec else None
+            run = _push_slices(trk, io.open_events(path, delta_t_us=batch_us, topic=topic), first_end, batch_us,
+                               t_last, snap_at, bar, stop, viewer, gt)  # fmt: skip
     bar.close()
-    ts, T_est, lost = np.array(ts), np.array(Ts).reshape(-1, 4, 4), np.array(lost, bool)
+    ts, T_est, lost = np.array(run.ts), np.array(run.Ts).reshape(-1, 4, 4), np.array(run.lost, bool)
+    solve_s = run.solve_s
     summary = dict(
-        recording=str(path), interrupted=interrupted, solver=solver, frontend=frontend, object=str(obj),
+        recording=str(path), interrupted=run.interrupted, solver=solver, frontend=frontend, object=str(obj),
         batch_us=batch_us,
-        n_updates=len(ts), n_events=int(np.sum(counts)), n_time_clamped=n_clamped, solve_s=solve_s,
+        n_updates=len(ts), n_events=int(np.sum(run.counts)), n_time_clamped=run.n_clamped, solve_s=solve_s,
         tracker_rate_hz=len(ts) / solve_s if solve_s > 0 else 0.0, lost=bool(lost[-1]) if len(lost) else False,
         lost_fraction=float(lost.mean()) if len(lost) else 0.0, width=cam.width, height=cam.height,
         started_lost=init_pose is None, first_lock_s=_first_lock_s(ts, lost, t_first),
@@ -129,10 +116,81 @@ def track_file(
         summary.update(gt_track_pos_rms_mm=None, gt_track_rot_rms_deg=None)
     out = make_out_dir(out, stale=OUTPUTS)
     _write_poses(out / "poses.csv", ts, T_est, lost, err_mm, err_deg)
-    _plot_overlay(out / "overlay.png", snaps, solver)
+    _plot_overlay(out / "overlay.png", run.snaps, solver)
     _plot_error(out / "error.png", ts, err_mm, err_deg, lost, solver)
     write_summary(out / "summary.json", summary)  # last: a summary.json is there only when the others are
     return summary
+
+
+@dataclass
+class _Slices:
+    """What tracking the slices of a recording gave: per update the slice end (µs), T_c_o, lost and
+    the slice's event count; the overlay snapshots; time in the updates (s); clamped events."""
+
+    ts: list[int] = dataclasses.field(default_factory=list)
+    Ts: list[np.ndarray] = dataclasses.field(default_factory=list)
+    lost: list[bool] = dataclasses.field(default_factory=list)
+    counts: list[int] = dataclasses.field(default_factory=list)
+    snaps: list[tuple] = dataclasses.field(default_factory=list)
+    solve_s: float = 0.0
+    n_clamped: int = 0
+    interrupted: bool = False
+
+    def add(self, end_us: int, n_events: int, est: _evcore.Estimate) -> None:
+        self.ts.append(end_us)
+        self.Ts.append(est.T_c_o)
+        self.lost.append(est.lost)
+        self.counts.append(n_events)
+
+
+def _push_slices(trk, slices, end: int, batch_us: int, t_last: int, snap_at: set[int], bar, stop, viewer,
+                 gt) -> _Slices:  # fmt: skip
+    """One ``update`` per slice from Python (any format; the viewer is shown every update). ``end``:
+    the first slice's end (µs); ``gt(t_us)``: ground truth T_c_o for the viewer, or None."""
+    from evservo import events
+
+    run, t_max = _Slices(), None
+    for k, ev in enumerate(slices):
+        if stop.requested:  # Ctrl-C: keep what was tracked, marked as interrupted
+            run.interrupted = True
+            break
+        if end - batch_us > t_last:
+            break
+        ev, n, t_max = events.clamp_time(ev, t_max)
+        run.n_clamped += n
+        started = time.perf_counter()
+        est = trk.update(ev)
+        run.solve_s += time.perf_counter() - started
+        if viewer is not None:
+            viewer.track(end, ev, est, trk, gt(end) if gt else None)
+        run.add(end, len(ev), est)
+        if k in snap_at:
+            field_img, origin = trk.field()
+            run.snaps.append((end, field_img.copy(), origin, trk.projected_points().copy()))
+        end += batch_us
+        bar.update()
+    return run
+
+
+def _replay_slices(trk, path: Path, batch_us: int, t_last: int, snap_at: set[int], bar, stop) -> _Slices:
+    """A RAW file decoded, sliced and tracked in a Rust thread, one synchronous update per slice as
+    :func:`_push_slices` does (``Tracker.replay(mode="update")``); this thread only shows progress
+    and passes a Ctrl-C on (the update in progress completes, the replay stops before the next)."""
+    run = _Slices()
+    with trk.replay(path, batch_us, speed=None, mode="update", until_us=t_last, snapshots_at=sorted(snap_at)) as rp:
+        while not rp.wait(timeout=0.1):
+            bar.update(rp.stats()["slices"] - bar.n)
+            if stop.requested:
+                rp.stop()
+                run.interrupted = True
+                break
+        stats = rp.stats()
+        for end_us, n_events, est in rp.updates():
+            run.add(end_us, n_events, est)
+        run.snaps = rp.snapshots()
+    bar.update(stats["slices"] - bar.n)
+    run.solve_s, run.n_clamped = float(stats["update_seconds"]), int(stats["clamped"])
+    return run
 
 
 def _first_lock_s(ts: np.ndarray, lost: np.ndarray, t_first_us: int) -> float | None:
