@@ -33,8 +33,8 @@ the desired pose is captured then, as in the paper.
 While the tracker flags the object lost, the loop holds (:class:`~evservo.control.hold.LossHold`, as
 the simulated bench does): no pose reaches the controller; the camera coasts on the object's
 predicted motion until the newest trusted pose is ``coast_s`` old (a short false loss costs nothing),
-then brakes to rest at the acceleration limit and stays there, the desired pose kept; once the tracker has locked again the
-controller restarts from the new pose and its command is ramped in. Servoing ends, with the
+then brakes to rest at the acceleration limit and stays there, the desired pose kept; once the
+tracker has locked again the controller restarts from the new pose and its command is ramped in. Servoing ends, with the
 commanded twist braked to zero at the acceleration limit and then an explicit arm stop, on:
 
 * ``duration_s`` reached, or the replayed recording ended — a normal end (``completed``);
