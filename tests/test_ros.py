@@ -218,7 +218,8 @@ def _servo(
     The fake arm does not carry the recording's camera: the loop dead-reckons the camera from its own
     twists, so the object's world pose moves by the camera's made-up motion, and across a loaded
     machine's gaps between poses (up to the 0.5 s watchdog) the jump gate's prediction of it is
-    meaningless. The gate is opened (1 m) so that these runs end by the watchdog the tests are about.
+    meaningless. The gate is opened (1 m, and 4 rad: any turn) so that these runs end by the watchdog
+    the tests are about.
     """
     rec = load_recording(rec_path)
     peer = procs.start(str(PEER), str(tmp_path / "twists.json"), "twist", f"{ns}/twist", "--idle-exit", "3",
@@ -229,6 +230,7 @@ def _servo(
         "--init-pose", _pose_text(rec.gt_T[0]), "--twist-topic", f"{ns}/twist", "--ee-frame", "flange",
         "--events-topic", f"{ns}/events",
         "--rate", "100", "--settle", "0.1", "--start-timeout", "60", "--stale-after", "0.5", "--max-jump", "1",
+        "--max-jump-rad", "4",
         "--out", str(tmp_path / "out"), *extra,
     )  # fmt: skip
     procs.wait_line(servo, "waiting up to")  # subscribed: the player waits for it
