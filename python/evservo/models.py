@@ -54,7 +54,8 @@ def trimesh_module() -> Any:
     """trimesh, imported on first use (it takes about 2 s, which every ``evservo`` command paid at
     start), with Ctrl-C held back meanwhile: its optional imports catch ``BaseException``, so a Ctrl-C
     pressed during them would be lost; held back, it is raised as soon as the import is done."""
-    if threading.current_thread() is not threading.main_thread():  # only the main thread gets Ctrl-C
+    # Only the main thread gets Ctrl-C; a handler installed outside Python (rclpy's) is left alone.
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
         import trimesh
 
         return trimesh
