@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import signal
 import sys
 import threading
 import time
@@ -345,6 +347,31 @@ def test_ctrl_c_stops_the_arm_and_the_threads(rec_path, rec):
         assert arm.gate.history[-1].kind == "halt"
     assert r.interrupted and not r.completed and "interrupted" in r.ended, (r.ended, r.watchdog)
     assert not tracker.running and 0.2 < r.servo_s < 1.0
+
+
+class SignalledArm(KinematicArm):
+    """A kinematic arm that, right after its ``after``-th twist reached it, gets a real SIGINT: the
+    Ctrl-C lands between a cycle's command and its log row."""
+
+    def __init__(self, after: int, **kw) -> None:
+        super().__init__(**kw)
+        self.after = after
+
+    def _send(self, v: np.ndarray, dt_s: float) -> None:
+        super()._send(v, dt_s)
+        if self.commands == self.after:
+            os.kill(os.getpid(), signal.SIGINT)
+
+
+def test_a_ctrl_c_after_a_command_still_logs_that_cycle(rec_path, rec):
+    """Every twist that reached the arm has its row in the log, even when the Ctrl-C arrives between
+    the command and the row (it used to leave the last twist unlogged)."""
+    source, tracker, cfg = parts(rec_path, rec)
+    with SignalledArm(after=round(0.3 * cfg.rate_hz), limits=GENTLE) as arm:
+        r = run_real_loop(arm, source, tracker, cfg)
+        sent = arm.commands
+    assert r.interrupted and "interrupted" in r.ended, r.ended
+    assert sent == round(0.3 * cfg.rate_hz) == len(r.t_s)
 
 
 # -- (e) dry run ---------------------------------------------------------------------------------

@@ -314,9 +314,8 @@ def test_servo_node_stops_the_arm_on_ctrl_c(servo_rec, tmp_path, ros_env, ns):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["interrupted"] and summary["ended"] == "interrupted (Ctrl-C)"
     _, twists, _ = _twists(tmp_path)
-    # A Ctrl-C that lands between a cycle's send and its log row leaves that one twist unlogged (the
-    # loop logs after sending; noted for a fix): every other twist is a logged cycle or a stop.
-    assert len(twists) - (summary["control_cycles"] + summary["gate"]["halts"] + 1) in (0, 1)
+    # Every twist is a logged cycle or a stop (a Ctrl-C waits for the cycle's log row).
+    assert len(twists) == summary["control_cycles"] + summary["gate"]["halts"] + 1
     assert np.any(twists[:-1]) and not np.any(twists[-1])
 
 

@@ -4,15 +4,21 @@ A loop runs inside ``with StopOnInterrupt() as stop:`` and checks ``stop.request
 The first SIGINT only sets the flag (the step in progress completes, nothing is left half-updated);
 a second one raises ``KeyboardInterrupt`` at once, for a run stuck inside a step. Outside the main
 thread signals cannot be caught, and the context manager does nothing: ``requested`` stays False.
+
+``with ctrl_c_held_back():`` is the short form for a few statements that must not be split (an
+arm command and its log row; an import whose ``except BaseException`` would swallow the Ctrl-C):
+a Ctrl-C pressed inside is raised as ``KeyboardInterrupt`` once the block is done.
 """
 
 from __future__ import annotations
 
 import signal
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import FrameType, TracebackType
 
-__all__ = ["INTERRUPTED", "StopOnInterrupt"]
+__all__ = ["INTERRUPTED", "StopOnInterrupt", "ctrl_c_held_back"]
 
 #: The ``ended`` reason of a run stopped by Ctrl-C.
 INTERRUPTED = "interrupted (Ctrl-C)"
@@ -46,3 +52,29 @@ class StopOnInterrupt:
         if self._installed:
             signal.signal(signal.SIGINT, self._previous)  # type: ignore[arg-type]
             self._installed = False
+
+
+@contextmanager
+def ctrl_c_held_back() -> Iterator[None]:
+    """Hold a Ctrl-C pressed inside the block back until the block is done, then raise it through the
+    previous handler (the default one raises ``KeyboardInterrupt``); a second Ctrl-C raises at once,
+    for a block that hangs. Does nothing outside the main thread, or when SIGINT is ignored, left to
+    the OS default, or handled outside Python (rclpy's handler): it must not be replaced there."""
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or not callable(previous):
+        yield
+        return
+    pressed: list[int] = []
+
+    def hold(signum: int, _frame: FrameType | None) -> None:
+        if pressed:
+            raise KeyboardInterrupt
+        pressed.append(signum)
+
+    signal.signal(signal.SIGINT, hold)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if pressed:
+        previous(signal.SIGINT, None)

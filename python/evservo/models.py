@@ -34,8 +34,6 @@ intensity (0 = black, 1 = white), which is what the renderer and the event simul
 from __future__ import annotations
 
 import os
-import signal
-import threading
 from dataclasses import dataclass
 from functools import cache
 from typing import TYPE_CHECKING, Any
@@ -44,6 +42,7 @@ import numpy as np
 from PIL import Image
 
 from evservo import _evcore
+from evservo.interrupt import ctrl_c_held_back
 
 if TYPE_CHECKING:
     import trimesh
@@ -54,19 +53,8 @@ def trimesh_module() -> Any:
     """trimesh, imported on first use (it takes about 2 s, which every ``evservo`` command paid at
     start), with Ctrl-C held back meanwhile: its optional imports catch ``BaseException``, so a Ctrl-C
     pressed during them would be lost; held back, it is raised as soon as the import is done."""
-    # Only the main thread gets Ctrl-C; a handler installed outside Python (rclpy's) is left alone.
-    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
+    with ctrl_c_held_back():
         import trimesh
-
-        return trimesh
-    pressed: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: pressed.append(signum))
-    try:
-        import trimesh
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if pressed and callable(previous):
-        previous(signal.SIGINT, None)  # the default handler raises KeyboardInterrupt
     return trimesh
 
 

@@ -72,6 +72,7 @@ from evservo import _evcore, events, geometry
 from evservo.control import Pbvs
 from evservo.control.hold import LossHold
 from evservo.geometry import pose_errors, rotation_from_first_rad
+from evservo.interrupt import ctrl_c_held_back
 from evservo.limits import CartesianLimits
 from evservo.outputs import make_out_dir
 from evservo.robots.base import Arm, shift_twist
@@ -367,13 +368,15 @@ def run_real_loop(
                 say(f"WATCHDOG at {t:.3f} s: {why}; braking to a stop")
                 hold.stop()
             v_cmd = cmd.v_c_w
-            arm.command_twist(shift_twist(v_cmd, p_c, p_e), period)
-            done_t = clock()
-            rec.add(
-                t_s=t, T_w_c=T_w_c, T_c_o_est=feed.T_c_o, est_t_s=feed.t_s, v_cmd_w=v_cmd, est_t_us=feed.t_us,
-                v_sent_w=gate.last_sent if gate is not None else shift_twist(v_cmd, p_c, p_e),
-                late_s=now - deadline, cycle_s=done_t - now, lost=feed.lost, holding=cmd.mode != "servoing",
-            )  # fmt: skip
+            # Every twist that reaches the arm has its row: a Ctrl-C waits for the row to be written.
+            with ctrl_c_held_back():
+                arm.command_twist(shift_twist(v_cmd, p_c, p_e), period)
+                done_t = clock()
+                rec.add(
+                    t_s=t, T_w_c=T_w_c, T_c_o_est=feed.T_c_o, est_t_s=feed.t_s, v_cmd_w=v_cmd, est_t_us=feed.t_us,
+                    v_sent_w=gate.last_sent if gate is not None else shift_twist(v_cmd, p_c, p_e),
+                    late_s=now - deadline, cycle_s=done_t - now, lost=feed.lost, holding=cmd.mode != "servoing",
+                )  # fmt: skip
             states.append(ctrl.state if ctrl is not None else cmd.mode)
             if on_cycle is not None and hold.T_c_o_des is not None:  # no desired pose yet while searching
                 on_cycle(t, T_w_c, hold.T_c_o_des)
