@@ -102,11 +102,12 @@ class _Procs:
         return self.output(p)
 
     def wait_line(self, p: subprocess.Popen, text: str, timeout_s: float = 60) -> None:
-        """Wait until ``p`` printed a line containing ``text`` (fails after ``timeout_s``)."""
+        """Wait until ``p`` printed (to stdout or stderr) a line containing ``text`` (fails after
+        ``timeout_s``)."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             out, err = self.output(p)
-            if text in out:
+            if text in out + err:
                 return
             if p.poll() is not None:
                 break
@@ -189,6 +190,7 @@ def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros
     assert {(t[0], t[1]) for t in tfs} == {("camera", "object")}
     assert [s["t_us"] for s in status] == offline["t_us"].astype(int).tolist()
     assert [s["lost"] for s in status] == offline["lost"].astype(bool).tolist()
+    np.testing.assert_allclose([s["confidence"] for s in status], offline["confidence"], atol=1e-6)
     if rrd is not None:
         from test_viewer import _rows_per_entity, _rrd_print
 
@@ -196,6 +198,29 @@ def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros
         rows = _rows_per_entity(_rrd_print(rrd, "-v"))
         for entity in ("/camera/events", "/camera/sstar", "/field/distance", "/world/object", "/tracking/lost"):
             assert rows.get(entity) == frames, (entity, rows)
+
+
+def test_track_node_without_intrinsics_waits_for_them_and_ends_with_a_clear_error(small_rec, tmp_path, ros_env, ns):
+    """Packets but no CameraInfo (and no --camera): the node says what it waits for, does not take
+    the idle exit while the packets wait, and a Ctrl-C ends it with an error naming the topic (it
+    used to wait forever for the intrinsics after the idle exit)."""
+    _need_ros()
+    rec = load_recording(small_rec)
+    topics = ["--events-topic", f"{ns}/events", "--camera-info-topic", f"{ns}/camera_info",
+              "--pose-topic", f"{ns}/pose", "--status-topic", f"{ns}/status"]  # fmt: skip
+    with _Procs(ros_env, tmp_path / "logs") as procs:
+        track = procs.evservo("ros", "track", "--model", rec.object, "--init-pose", _pose_text(rec.gt_T[0]),
+                              "--idle-exit", "0.5", *topics)  # fmt: skip
+        play = procs.evservo("ros", "play", str(small_rec), "--topic", f"{ns}/events", "--wait", "60")
+        procs.wait(play)
+        procs.wait_line(track, "wait for a sensor_msgs/CameraInfo")
+        time.sleep(1.0)  # twice the idle exit: the node must still be waiting
+        assert track.poll() is None, procs.output(track)
+        track.send_signal(signal.SIGINT)
+        out, err = procs.wait(track, timeout_s=30)
+    assert play.returncode == 0
+    assert track.returncode == 2, out + err
+    assert f"no sensor_msgs/CameraInfo on {ns}/camera_info" in err and "Traceback" not in err, err
 
 
 def _rig(tmp_path: Path, camera) -> Path:

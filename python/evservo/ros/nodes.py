@@ -9,7 +9,7 @@ slices it on the same 1 ms event-time grid as ``evservo track`` and runs the sam
 slice, so its poses equal ``evservo track``'s on the same events whatever the packet boundaries
 and delivery timing. Per update it publishes ``geometry_msgs/PoseStamped`` (``T_c_o``, frame
 ``camera_frame``), the same transform on ``/tf`` (``tf2_msgs/TFMessage``, child ``object_frame``)
-and a ``std_msgs/String`` status (JSON: ``t_us`` event time of the slice end, ``lost``, ``cost``,
+and a ``std_msgs/String`` status (JSON: ``t_us`` event time of the slice end, ``lost``, ``confidence``, ``cost``,
 ``inlier_fraction``, ``n_events``). Intrinsics from ``--camera FILE`` or else the first
 ``sensor_msgs/CameraInfo`` on the camera-info topic.
 """
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import queue
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -99,7 +100,7 @@ def play(path: str | Path, topic: str, rate: float = 1.0, packet_us: int = 1000,
         return seq
     finally:
         node.destroy_node()
-        rclpy.shutdown()
+        rclpy.try_shutdown()  # a Ctrl-C has shut the context down already (rclpy's own SIGINT handler)
 
 
 def _camera_from_info(msg: Any) -> _evcore.Camera:
@@ -115,9 +116,11 @@ def track(
     object_frame: str = "object", solver: str = "edft+", batch_us: int = 1000, idle_exit_s: float | None = None,
     viewer: Any = None,
 ) -> int:  # fmt: skip
-    """Run the tracking node until Ctrl-C, or until ``idle_exit_s`` without packets once some came.
+    """Run the tracking node until Ctrl-C, or until ``idle_exit_s`` without packets once some came and
+    the intrinsics are known (packets that came before them wait in the queue).
     ``viewer``: a :class:`~evservo.viewer.RerunViewer` shown every update (the caller closes it).
-    Returns the number of poses published."""
+    Returns the number of poses published; raises ``ValueError`` when it ends with packets but never
+    got a CameraInfo to track them with."""
     rclpy = _ros()
     from event_camera_msgs.msg import EventPacket
     from geometry_msgs.msg import PoseStamped, TransformStamped
@@ -132,6 +135,7 @@ def track(
     packets: queue.Queue[Any] = queue.Queue()
     cam_box: list[_evcore.Camera | None] = [camera]
     last_packet = [time.monotonic(), False]
+    ending = threading.Event()  # set when the node stops: a worker waiting for intrinsics gives up
     rclpy.init()
     node = rclpy.create_node("evservo_track")
     try:
@@ -166,7 +170,11 @@ def track(
                 end = None
                 for ev in io._block_time_slices(blocks(), batch_us):
                     while cam_box[0] is None:  # events before the intrinsics wait for them
-                        time.sleep(0.01)
+                        if ending.wait(0.01):
+                            raise ValueError(
+                                f"event packets came on {events_topic} but no sensor_msgs/CameraInfo on "
+                                f"{camera_info_topic}: give the intrinsics with --camera FILE"
+                            )
                     if trk is None:
                         trk = Tracker(cam_box[0], model, init_pose, solver=solver)
                         end = (int(ev["t"][0]) // batch_us + 1) * batch_us
@@ -195,20 +203,27 @@ def track(
             tr.x, tr.y, tr.z = p.x, p.y, p.z
             rot.x, rot.y, rot.z, rot.w = o.x, o.y, o.z, o.w
             tf_pub.publish(TFMessage(transforms=[tf]))
-            status = dict(t_us=end_us, lost=bool(est.lost), cost=float(est.cost),
+            status = dict(t_us=end_us, lost=bool(est.lost), confidence=float(est.confidence), cost=float(est.cost),
                           inlier_fraction=float(est.inlier_fraction), n_events=int(est.n_events))  # fmt: skip
             status_pub.publish(String(data=json.dumps(status)))
             published[0] += 1
 
         worker = threading.Thread(target=work, name="evservo-track", daemon=True)
         worker.start()
+        warned = False
         try:
             while rclpy.ok() and worker.is_alive():
                 rclpy.spin_once(node, timeout_sec=0.05)
-                if idle_exit_s is not None and last_packet[1] and time.monotonic() - last_packet[0] > idle_exit_s:
+                quiet_s = time.monotonic() - last_packet[0] if last_packet[1] else 0.0
+                if cam_box[0] is None and quiet_s > 2.0 and not warned:
+                    warned = True
+                    print(f"ros track: {packets.qsize()} event packets wait for a sensor_msgs/CameraInfo on "
+                          f"{camera_info_topic} (or give --camera FILE)", file=sys.stderr, flush=True)  # fmt: skip
+                if idle_exit_s is not None and quiet_s > idle_exit_s and cam_box[0] is not None:
                     break
         except KeyboardInterrupt:
             pass
+        ending.set()
         packets.put(None)  # flush the last partial slice
         worker.join()
         if failure:
@@ -219,4 +234,4 @@ def track(
         return published[0]
     finally:
         node.destroy_node()
-        rclpy.shutdown()
+        rclpy.try_shutdown()  # a Ctrl-C has shut the context down already (rclpy's own SIGINT handler)

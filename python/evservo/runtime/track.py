@@ -115,7 +115,7 @@ def track_file(
     else:
         summary.update(gt_track_pos_rms_mm=None, gt_track_rot_rms_deg=None)
     out = make_out_dir(out, stale=OUTPUTS)
-    _write_poses(out / "poses.csv", ts, T_est, lost, err_mm, err_deg)
+    _write_poses(out / "poses.csv", ts, T_est, lost, np.array(run.confidence), err_mm, err_deg)
     _plot_overlay(out / "overlay.png", run.snaps, solver)
     _plot_error(out / "error.png", ts, err_mm, err_deg, lost, solver)
     write_summary(out / "summary.json", summary)  # last: a summary.json is there only when the others are
@@ -124,12 +124,13 @@ def track_file(
 
 @dataclass
 class _Slices:
-    """What tracking the slices of a recording gave: per update the slice end (µs), T_c_o, lost and
-    the slice's event count; the overlay snapshots; time in the updates (s); clamped events."""
+    """What tracking the slices of a recording gave: per update the slice end (µs), T_c_o, lost, the
+    confidence (0–1) and the slice's event count; the overlay snapshots; time in the updates (s); clamped events."""
 
     ts: list[int] = dataclasses.field(default_factory=list)
     Ts: list[np.ndarray] = dataclasses.field(default_factory=list)
     lost: list[bool] = dataclasses.field(default_factory=list)
+    confidence: list[float] = dataclasses.field(default_factory=list)
     counts: list[int] = dataclasses.field(default_factory=list)
     snaps: list[tuple] = dataclasses.field(default_factory=list)
     solve_s: float = 0.0
@@ -140,6 +141,7 @@ class _Slices:
         self.ts.append(end_us)
         self.Ts.append(est.T_c_o)
         self.lost.append(est.lost)
+        self.confidence.append(est.confidence)
         self.counts.append(n_events)
 
 
@@ -199,13 +201,13 @@ def _first_lock_s(ts: np.ndarray, lost: np.ndarray, t_first_us: int) -> float | 
     return float((ts[locked[0]] - t_first_us) * 1e-6) if len(locked) else None
 
 
-def _write_poses(path: Path, ts, T_est, lost, err_mm, err_deg) -> None:
+def _write_poses(path: Path, ts, T_est, lost, confidence, err_mm, err_deg) -> None:
     from scipy.spatial.transform import Rotation
 
     q = Rotation.from_matrix(T_est[:, :3, :3]).as_quat() if len(T_est) else np.zeros((0, 4))
-    cols = [ts, T_est[:, 0, 3], T_est[:, 1, 3], T_est[:, 2, 3], *q.T, lost.astype(int)]
-    header = "t_us,x_m,y_m,z_m,qx,qy,qz,qw,lost"
-    fmt = ["%d", "%.6f", "%.6f", "%.6f", "%.8f", "%.8f", "%.8f", "%.8f", "%d"]
+    cols = [ts, T_est[:, 0, 3], T_est[:, 1, 3], T_est[:, 2, 3], *q.T, lost.astype(int), confidence]
+    header = "t_us,x_m,y_m,z_m,qx,qy,qz,qw,lost,confidence"
+    fmt = ["%d", "%.6f", "%.6f", "%.6f", "%.8f", "%.8f", "%.8f", "%.8f", "%d", "%.6f"]
     if err_mm is not None:
         cols += [err_mm, err_deg]
         header += ",pos_err_mm,rot_err_deg"
