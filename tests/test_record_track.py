@@ -51,8 +51,12 @@ def test_track_end_to_end_with_edft_plus(trans_rot, rec_dir, capsys):
     # Measured 1.7 mm / 0.41° over 1 s; bounds with margin for the paper's 5 mm / 1° target.
     assert s["gt_track_pos_rms_mm"] < 5.0 and s["gt_track_rot_rms_deg"] < 1.0, s
     assert not s["lost"] and s["tracker_rate_hz"] > 0
-    poses = np.loadtxt(out / "poses.csv", delimiter=",", skiprows=1)
-    assert poses.shape == (s["n_updates"], 11)
+    poses = np.genfromtxt(out / "poses.csv", delimiter=",", names=True)
+    assert len(poses) == s["n_updates"] and poses.dtype.names == (
+        "t_us", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw", "lost", "confidence", "pos_err_mm", "rot_err_deg"
+    )  # fmt: skip
+    # Right all along: the confidence never drops to the default lost threshold (0.25).
+    assert np.all((poses["confidence"] > 0.25) & (poses["confidence"] <= 1.0)), poses["confidence"].min()
     assert (out / "overlay.png").stat().st_size > 10_000 and (out / "error.png").stat().st_size > 5_000
     assert "edft+" in capsys.readouterr().out
 

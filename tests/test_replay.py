@@ -168,10 +168,11 @@ def test_track_on_a_raw_file_uses_the_rust_replay_with_the_python_path_s_poses(t
     assert "edft+" in err and "batch" in err  # the progress bar
     poses = np.loadtxt(tmp_path / "t" / "poses.csv", delimiter=",", skiprows=1)
     _, expected = _update_per_slice(500)
-    assert poses.shape == (18, 9)
+    assert poses.shape == (18, 10)
     np.testing.assert_array_equal(poses[:, 0], [e[0] for e in expected])
     np.testing.assert_allclose(poses[:, 1:4], [e[2].T_c_o[:3, 3] for e in expected], atol=1e-6)
     np.testing.assert_array_equal(poses[:, 8], [e[2].lost for e in expected])
+    np.testing.assert_allclose(poses[:, 9], [e[2].confidence for e in expected], atol=1e-6)
 
 
 def test_ctrl_c_in_a_replayed_track_keeps_what_was_tracked(tmp_path, capsys, monkeypatch):
