@@ -371,7 +371,34 @@ def test_a_ctrl_c_after_a_command_still_logs_that_cycle(rec_path, rec):
         r = run_real_loop(arm, source, tracker, cfg)
         sent = arm.commands
     assert r.interrupted and "interrupted" in r.ended, r.ended
-    assert sent == round(0.3 * cfg.rate_hz) == len(r.t_s)
+    assert sent == round(0.3 * cfg.rate_hz) == len(r.t_s) == len(r.state)
+    assert summarize(r)["control_cycles"] == sent
+
+
+class RacedArm(KinematicArm):
+    """A kinematic arm whose gate watchdog halts it right after its ``after``-th command returned, as
+    the gate's thread can on a loaded machine, before the loop has written the cycle's row."""
+
+    def __init__(self, after: int, **kw) -> None:
+        super().__init__(**kw)
+        self.after = after
+
+    def command_twist(self, v_e_w: np.ndarray, dt_s: float) -> np.ndarray:
+        sent = super().command_twist(v_e_w, dt_s)
+        if self.commands == self.after:
+            self.gate.stop("watchdog: no fresh command")
+        return sent
+
+
+def test_the_log_holds_the_twist_each_cycle_sent_even_when_the_gate_halts_meanwhile(rec_path, rec):
+    """A cycle's ``v_sent_w`` is the twist the gate sent in that cycle (it read the gate's twist in
+    force after the send, which a halt in between turned into zeros)."""
+    source, tracker, cfg = parts(rec_path, rec, duration_s=0.5)
+    with RacedArm(after=20, limits=GENTLE) as arm:
+        r = run_real_loop(arm, source, tracker, cfg)
+        sent = [h.sent for h in arm.gate.history if h.kind == "command"]
+    assert len(sent) == len(r.t_s) > 20 and np.any(sent[19])
+    np.testing.assert_array_equal(r.v_sent_w, sent)
 
 
 # -- (e) dry run ---------------------------------------------------------------------------------

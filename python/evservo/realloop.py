@@ -370,14 +370,15 @@ def run_real_loop(
             v_cmd = cmd.v_c_w
             # Every twist that reaches the arm has its row: a Ctrl-C waits for the row to be written.
             with ctrl_c_held_back():
-                arm.command_twist(shift_twist(v_cmd, p_c, p_e), period)
+                # What the gate let through, as it returned it: its watchdog may halt the arm meanwhile.
+                sent = arm.command_twist(shift_twist(v_cmd, p_c, p_e), period)
                 done_t = clock()
                 rec.add(
                     t_s=t, T_w_c=T_w_c, T_c_o_est=feed.T_c_o, est_t_s=feed.t_s, v_cmd_w=v_cmd, est_t_us=feed.t_us,
-                    v_sent_w=gate.last_sent if gate is not None else shift_twist(v_cmd, p_c, p_e),
+                    v_sent_w=sent if sent is not None else shift_twist(v_cmd, p_c, p_e),
                     late_s=now - deadline, cycle_s=done_t - now, lost=feed.lost, holding=cmd.mode != "servoing",
                 )  # fmt: skip
-            states.append(ctrl.state if ctrl is not None else cmd.mode)
+                states.append(ctrl.state if ctrl is not None else cmd.mode)
             if on_cycle is not None and hold.T_c_o_des is not None:  # no desired pose yet while searching
                 on_cycle(t, T_w_c, hold.T_c_o_des)
             if stopping is not None:

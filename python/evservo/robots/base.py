@@ -29,9 +29,10 @@ class Arm(Protocol):
         """Joint positions (rad)."""
         ...
 
-    def command_twist(self, v_e_w: np.ndarray, dt_s: float) -> None:
+    def command_twist(self, v_e_w: np.ndarray, dt_s: float) -> np.ndarray | None:
         """Ask the end effector to move with twist ``v_e_w`` (world frame, (6,)) for the next ``dt_s``
-        seconds; the arm resolves it within its joint limits and holds it until the next command."""
+        seconds; the arm resolves it within its joint limits and holds it until the next command.
+        Returns the twist sent when the arm limits it on the way (a gated arm), else None."""
         ...
 
     def stop(self) -> None:

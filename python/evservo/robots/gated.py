@@ -68,14 +68,15 @@ class GatedArm:
         """Camera pose in the world (robot base) frame, 4×4, metres."""
         return self.T_w_e() @ self._T_e_c
 
-    def command_twist(self, v_e_w: np.ndarray, dt_s: float) -> None:
+    def command_twist(self, v_e_w: np.ndarray, dt_s: float) -> np.ndarray:
         """Send end-effector twist ``v_e_w`` (world frame, (6,), m/s and rad/s), limited by the gate, to
-        be held for ``dt_s`` seconds. Raises ``ConnectionError`` (after a stop attempt) when the link
-        is lost, ``RuntimeError`` when the arm refuses."""
+        be held for ``dt_s`` seconds; returns the twist sent (what :attr:`SafetyGate.last_sent` holds
+        until the next command or a halt by the gate's watchdog). Raises ``ConnectionError`` (after a
+        stop attempt) when the link is lost, ``RuntimeError`` when the arm refuses."""
         self._check_ready()
         p = self.T_w_e()[:3, 3]
         try:
-            self.gate.command(v_e_w, p, dt_s)
+            return self.gate.command(v_e_w, p, dt_s)
         except Exception as err:
             self._on_command_error(err)
             raise
