@@ -643,12 +643,18 @@ def symmetries(
         if any(s.continuous and abs(float(np.dot(s.axis_o, axis))) > 0.99 for s in found):
             continue  # an axis already found through another candidate
         if partial and all(turned_alike(centre, axis, VIEW_ANGLES_DEG)):
-            found.append(Symmetry(tuple(float(a) for a in axis), tuple(float(c) for c in centre), 0.0))
+            found.append(_symmetry(axis, centre, 0.0))
             continue
         matches = turned_alike(centre, axis, SYMMETRY_ANGLES_DEG)
         if not any(matches):
             continue
         continuous = all(matches[:3])
         period = 0.0 if continuous else SYMMETRY_ANGLES_DEG[matches.index(True)]
-        found.append(Symmetry(tuple(float(a) for a in axis), tuple(float(c) for c in centre), period))
+        found.append(_symmetry(axis, centre, period))
     return found
+
+
+def _symmetry(axis: np.ndarray, centre: np.ndarray, period_deg: float) -> Symmetry:
+    x, y, z = (float(v) for v in axis)
+    cx, cy, cz = (float(v) for v in centre)
+    return Symmetry((x, y, z), (cx, cy, cz), period_deg)
