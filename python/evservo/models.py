@@ -571,15 +571,11 @@ def _in_image(camera: _evcore.Camera, p_c: np.ndarray) -> np.ndarray:
 
 
 def _edge_pixels(mesh: _evcore.Mesh, camera: _evcore.Camera, T_c_o: np.ndarray) -> np.ndarray:
-    """The edge pixels (silhouette, crease, print) of one rendering inside the image, (N, 2) integer
-    (u, v): what the camera sees of the object, not the part beyond the border."""
+    """All edge pixels (silhouette, crease, print) of one rendering, (N, 2) integer (u, v)."""
     points, _ = _evcore.extract_point_set(mesh, camera, T_c_o, max_points=1_000_000)
     p = points @ T_c_o[:3, :3].T + T_c_o[:3, 3]
-    uv = np.round(
-        np.column_stack([camera.fx * p[:, 0] / p[:, 2] + camera.cx, camera.fy * p[:, 1] / p[:, 2] + camera.cy])
-    )
-    inside = (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
-    return uv[inside].astype(int)
+    uv = np.column_stack([camera.fx * p[:, 0] / p[:, 2] + camera.cx, camera.fy * p[:, 1] / p[:, 2] + camera.cy])
+    return np.round(uv).astype(int)
 
 
 def _chamfer_px(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> float:
@@ -606,8 +602,8 @@ def symmetries(
     Edges are what the tracker sees, so print counts: a labelled can has no symmetry, a plain one a
     continuous one, a can with a regular 8-period checker label a 45° one.
 
-    So does the border. With part of the object out of the image only its edges inside the image
-    are compared, the axis of revolution of the part in view is tried too, and an axis about which
+    So does the border. With part of the object out of the image (its rendered edges stop there) the
+    axis of revolution of the part in view is tried too, and an axis about which
     every turn of :data:`VIEW_ANGLES_DEG` leaves those edges in place is a continuous symmetry of the
     view (larger turns may bring a hidden part in; the tracker moves by small ones): a mug whose
     handle is beyond the border turns unobservably about its body's axis."""
