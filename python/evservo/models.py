@@ -474,6 +474,8 @@ def to_core_mesh(mesh: trimesh.Trimesh, default_intensity: float = 0.5) -> _evco
 
 #: Turns (degrees) tried about each candidate axis; the small ones decide "continuous".
 SYMMETRY_ANGLES_DEG = (7.5, 15.0, 22.5, 30.0, 36.0, 45.0, 60.0, 72.0, 90.0, 120.0, 180.0)
+#: Turns (degrees) that decide a continuous symmetry of a partial view (see :func:`symmetries`).
+VIEW_ANGLES_DEG = (-7.5, -5.0, -2.5, 2.5, 5.0, 7.5)
 #: A turn is a symmetry when the edge images before and after differ by less than this (mean
 #: symmetric chamfer distance, pixels).
 SYMMETRY_TOL_PX = 0.75
@@ -514,6 +516,48 @@ def _candidate_axes(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
     return centre, np.linalg.eigh(cov)[1].T
 
 
+def _axis_of_revolution(mesh: trimesh.Trimesh, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(point (3,), unit direction (3,)) of the line about which most of the ``faces`` (a boolean
+    mask) turn into themselves; None when they do not fix one.
+
+    Turning about an axis (direction a through c) moves a surface point p with velocity
+    a × (p − c); the surface maps onto itself where that velocity is tangent, n · (a × (p − c)) = 0
+    for its normal n. That is linear in (a, c × a): the area-weighted least-squares a is the
+    smallest eigenvector of the Schur complement of the six unknowns. Faces off the fitted surface
+    of revolution (what is left in view of a handle) are dropped and the fit repeated. This finds
+    the axis of the part in view where the whole object's principal axes miss it (a mug whose
+    handle is beyond the border: its centroid leans towards the handle, the body's axis does not)."""
+    w = np.asarray(mesh.area_faces)[faces]
+    p = np.asarray(mesh.triangles_center)[faces]
+    n = np.asarray(mesh.face_normals)[faces]
+    m = np.cross(p, n)
+    keep = np.ones(len(w), bool)
+    axis = None
+    for _ in range(3):
+        if keep.sum() < 6:
+            return axis
+        wk = w[keep][:, None]
+        a_mm, b_mn, c_nn = (m[keep] * wk).T @ m[keep], (m[keep] * wk).T @ n[keep], (n[keep] * wk).T @ n[keep]
+        if np.linalg.matrix_rank(c_nn) < 3:
+            return axis
+        a = np.linalg.eigh(a_mm - b_mn @ np.linalg.solve(c_nn, b_mn.T))[1][:, 0]
+        moment = -np.linalg.solve(c_nn, b_mn.T @ a)  # c × a
+        axis = (np.cross(a, moment), a)
+        # The tangential speed of each face per radian of turn, against the fit's typical one.
+        off = np.abs(m @ a + n @ moment)
+        keep = off <= 3.0 * np.median(off[keep]) + 1e-9
+    return axis
+
+
+def _in_image(camera: _evcore.Camera, p_c: np.ndarray) -> np.ndarray:
+    """Which camera-frame points (N, 3) project into the (rectified) image, in front of the camera."""
+    z = np.where(p_c[:, 2] > 1e-6, p_c[:, 2], np.nan)
+    u = camera.fx * p_c[:, 0] / z + camera.cx
+    v = camera.fy * p_c[:, 1] / z + camera.cy
+    with np.errstate(invalid="ignore"):
+        return (u >= 0) & (u <= camera.width - 1) & (v >= 0) & (v <= camera.height - 1)
+
+
 def _edge_pixels(mesh: _evcore.Mesh, camera: _evcore.Camera, T_c_o: np.ndarray) -> np.ndarray:
     """All edge pixels (silhouette, crease, print) of one rendering, (N, 2) integer (u, v)."""
     points, _ = _evcore.extract_point_set(mesh, camera, T_c_o, max_points=1_000_000)
@@ -544,7 +588,13 @@ def symmetries(
     it at ``T_c_o`` (default: the recordings' start rotation at the depth where it spans about
     300 px of the rectified imx636) and turned about each axis by :data:`SYMMETRY_ANGLES_DEG`.
     Edges are what the tracker sees, so print counts: a labelled can has no symmetry, a plain one a
-    continuous one, a can with a regular 8-period checker label a 45° one."""
+    continuous one, a can with a regular 8-period checker label a 45° one.
+
+    So does the border. With part of the object out of the image (its rendered edges stop there) the
+    axis of revolution of the part in view is tried too, and an axis about which
+    every turn of :data:`VIEW_ANGLES_DEG` leaves those edges in place is a continuous symmetry of the
+    view (larger turns may bring a hidden part in; the tracker moves by small ones): a mug whose
+    handle is beyond the border turns unobservably about its body's axis."""
     shape_mesh = load_object(obj)
     mesh = to_core_mesh(shape_mesh)
     camera = (camera or _evcore.Camera.imx636()).rectified()
@@ -554,19 +604,41 @@ def symmetries(
         T_c_o = start_pose(camera.fx * mesh.bounding_radius / 150.0)
     image_shape = (camera.height, camera.width)
     reference = _edge_pixels(mesh, camera, T_c_o)
-    centre, axes = _candidate_axes(shape_mesh)
-    found = []
-    for axis in axes:
-        matches = []
-        for deg in SYMMETRY_ANGLES_DEG:
+
+    def turned_alike(centre: np.ndarray, axis: np.ndarray, angles: tuple[float, ...]) -> list[bool]:
+        out = []
+        for deg in angles:
             turn = np.eye(4)
             turn[:3, :3] = trimesh_module().transformations.rotation_matrix(np.deg2rad(deg), axis, centre)[:3, :3]
             turn[:3, 3] = centre - turn[:3, :3] @ centre
             turned = _edge_pixels(mesh, camera, T_c_o @ turn)
-            matches.append(_chamfer_px(turned, reference, image_shape) < SYMMETRY_TOL_PX)
+            out.append(_chamfer_px(turned, reference, image_shape) < SYMMETRY_TOL_PX)
+        return out
+
+    centre, axes = _candidate_axes(shape_mesh)
+    candidates = [(centre, axis) for axis in axes]
+    centres_c = np.asarray(shape_mesh.triangles_center) @ T_c_o[:3, :3].T + T_c_o[:3, 3]
+    in_view = _in_image(camera, centres_c)
+    partial = not in_view.all()
+    if partial and (revolution := _axis_of_revolution(shape_mesh, in_view)) is not None:
+        candidates.insert(0, revolution)  # reported in its place: the principal axes lean off it
+    found: list[Symmetry] = []
+    for centre, axis in candidates:
+        if any(s.continuous and abs(float(np.dot(s.axis_o, axis))) > 0.99 for s in found):
+            continue  # an axis already found through another candidate
+        if partial and all(turned_alike(centre, axis, VIEW_ANGLES_DEG)):
+            found.append(_symmetry(axis, centre, 0.0))
+            continue
+        matches = turned_alike(centre, axis, SYMMETRY_ANGLES_DEG)
         if not any(matches):
             continue
         continuous = all(matches[:3])
         period = 0.0 if continuous else SYMMETRY_ANGLES_DEG[matches.index(True)]
-        found.append(Symmetry(tuple(float(a) for a in axis), tuple(float(c) for c in centre), period))
+        found.append(_symmetry(axis, centre, period))
     return found
+
+
+def _symmetry(axis: np.ndarray, centre: np.ndarray, period_deg: float) -> Symmetry:
+    x, y, z = (float(v) for v in axis)
+    cx, cy, cz = (float(v) for v in centre)
+    return Symmetry((x, y, z), (cx, cy, cz), period_deg)
