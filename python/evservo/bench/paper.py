@@ -69,12 +69,17 @@ METRICS = (
 
 #: Event sources of the suite: the idealised edges, or the rendered reference camera with the arms.
 EVENTS = ("edges", "render")
+#: The suite's sections, in report order (``--sections`` picks some of them).
+SECTIONS = ("table1", "table2", "fig2", "feedforward", "sweep", "predictor")
 
 
-def plan(quick: bool, events: str = "edges") -> list[tuple[str, EpisodeConfig]]:
-    """(section, config) of every episode of the suite."""
+def plan(quick: bool, events: str = "edges", sections: tuple[str, ...] = SECTIONS) -> list[tuple[str, EpisodeConfig]]:
+    """(section, config) of every episode of the suite's ``sections``."""
     if events not in EVENTS:
         raise ValueError(f"unknown event source {events!r} for the paper suite; choose one of {EVENTS}")
+    unknown = sorted(set(sections) - set(SECTIONS))
+    if unknown or not sections:
+        raise ValueError(f"unknown paper-suite section(s) {unknown or sections!r}; choose from {', '.join(SECTIONS)}")
     rendered = events == "render"
     dur = (0.3 if rendered else 3.0) if quick else 20.0
     seeds = (1,) if quick else (1, 2, 3)
@@ -107,7 +112,7 @@ def plan(quick: bool, events: str = "edges") -> list[tuple[str, EpisodeConfig]]:
     for traj in ("stop-go",) if quick else ("stop-go", "reversal"):
         for predictor in PREDICTORS:
             out.append(("predictor", replace(base, trajectory=traj, feedforward=True, predictor=predictor)))
-    return out
+    return [(section, cfg) for section, cfg in out if section in sections]
 
 
 def episode_key(cfg: EpisodeConfig) -> str:
@@ -196,7 +201,12 @@ def _priority(rows: list[tuple[str, str, EpisodeConfig]], key: str, cfg: Episode
 
 
 def run_all(
-    out: Path, quick: bool, jobs: int, events: str = "edges", scheduler: str | None = None
+    out: Path,
+    quick: bool,
+    jobs: int,
+    events: str = "edges",
+    scheduler: str | None = None,
+    sections: tuple[str, ...] = SECTIONS,
 ) -> tuple[list[tuple[str, str, EpisodeConfig, dict]], int]:
     """Run (or reuse) every episode, locally (``jobs`` processes) or on the dask cluster at
     ``scheduler``; returns (section, key, config, summary) per planned row and how many episodes were
@@ -204,7 +214,7 @@ def run_all(
     cluster gave up on has the summary ``{"completed": False, "failed": reason}``."""
     from tqdm import tqdm
 
-    rows = [(section, episode_key(cfg), cfg) for section, cfg in plan(quick, events)]
+    rows = [(section, episode_key(cfg), cfg) for section, cfg in plan(quick, events, sections)]
     code = code_version()
     summaries: dict[str, dict] = {}
     todo: dict[str, EpisodeConfig] = {}
@@ -320,8 +330,9 @@ def report(
     wall_s: float,
     reused: int = 0,
     events: str = "edges",
+    sections: tuple[str, ...] = SECTIONS,
 ) -> str:
-    events_flag = "" if events == "edges" else f" --events {events}"
+    events_flag = ("" if events == "edges" else f" --events {events}") + _sections_flag(sections)
     failed = {key: s["failed"] for _, key, _, s in episodes if "failed" in s}
     episodes = [e for e in episodes if "failed" not in e[3]]
     groups: dict[tuple, list[dict]] = {}
@@ -342,6 +353,12 @@ def report(
         "are from its real bench (no ground truth there).",
         "",
     ]
+    if tuple(sections) != SECTIONS:
+        lines += [
+            f"**Sections run: {', '.join(sections)}** (`--sections`); the other tables are empty here because their "
+            "episodes were not run, not because they failed.",
+            "",
+        ]
 
     def table(section: str, title: str, note: str) -> None:
         lines.extend([f"## {title}", "", note, ""])
@@ -466,14 +483,28 @@ def report(
     return text
 
 
-def run(out: Path, quick: bool = False, jobs: int = 1, events: str = "edges", scheduler: str | None = None) -> dict:
+def _sections_flag(sections: tuple[str, ...]) -> str:
+    return "" if tuple(sections) == SECTIONS else f" --sections {','.join(sections)}"
+
+
+def run(
+    out: Path,
+    quick: bool = False,
+    jobs: int = 1,
+    events: str = "edges",
+    scheduler: str | None = None,
+    sections: tuple[str, ...] = SECTIONS,
+) -> dict:
+    """Run (or reuse) the episodes of the suite's ``sections`` and write ``report.md`` and
+    ``results.json`` into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    episodes, reused = run_all(out, quick, jobs, events, scheduler)
+    episodes, reused = run_all(out, quick, jobs, events, scheduler, sections)
     wall = time.perf_counter() - t0
-    report(out, episodes, quick, wall, reused, events)
+    report(out, episodes, quick, wall, reused, events, sections)
     where = f"--scheduler {scheduler}" if scheduler else f"--jobs {jobs}"
     flags = f"{' --quick' if quick else ''}{'' if events == 'edges' else f' --events {events}'}"
+    flags += _sections_flag(sections)
     results = {
         "command": f"evservo bench --suite paper{flags} {where} --out {out}",
         "evservo": evservo.__version__,
