@@ -29,15 +29,26 @@ def test_bad_sections_are_refused_before_any_episode_runs(tmp_path, capsys):
     assert "--sections applies to the paper suite only" in capsys.readouterr().err
 
 
-def test_one_section_runs_alone_and_its_report_says_which(tmp_path):
-    assert main(["bench", "--suite", "paper", "--quick", "--sections", "predictor", "--out", str(tmp_path)]) == 0
+def test_one_section_runs_alone_and_its_report_says_which(tmp_path, monkeypatch):
+    """Which episodes run and what the report says; the episodes themselves are stand-ins (the quick suite
+    of tests/test_bench.py runs real ones)."""
+    ran = []
+
+    def episode(cfg, out_dir):
+        ran.append(paper.episode_key(cfg))
+        metrics = dict.fromkeys(paper.METRICS, 1.0)
+        return {**metrics, "completed": True, "lost_at_s": None, "overshoot_mm": 2.5, "loss": {}}
+
+    monkeypatch.setattr(paper, "_run_one", episode)
+    assert main(["bench", "--suite", "paper", "--sections", "predictor", "--out", str(tmp_path)]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
-    assert [(e["section"], e["config"]["predictor"]) for e in results["episodes"]] == [
-        ("predictor", "velocity"),
-        ("predictor", "acceleration"),
-    ]
-    assert sorted(p.name for p in (tmp_path / "episodes").iterdir()) == sorted(e["key"] for e in results["episodes"])
+    planned = [(e["section"], e["config"]["trajectory"], e["config"]["predictor"]) for e in results["episodes"]]
+    assert sorted(planned) == sorted(
+        ("predictor", traj, pred) for traj in ("stop-go", "reversal") for pred in ("velocity", "acceleration")
+    )
+    assert sorted(ran) == sorted(e["key"] for e in results["episodes"])
     assert "--sections predictor" in results["command"]
     report = (tmp_path / "report.md").read_text()
     assert "**Sections run: predictor**" in report and "--sections predictor" in report
-    assert report.count("| stop-go |") == 2
+    assert report.count("| stop-go |") == 2 and report.count("| reversal |") == 2
+    assert "| box |" not in report  # no table row of another section
