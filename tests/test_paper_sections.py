@@ -52,3 +52,37 @@ def test_one_section_runs_alone_and_its_report_says_which(tmp_path, monkeypatch)
     assert "**Sections run: predictor**" in report and "--sections predictor" in report
     assert report.count("| stop-go |") == 2 and report.count("| reversal |") == 2
     assert "| box |" not in report  # no table row of another section
+
+
+def test_a_report_put_together_from_two_runs_says_which_figure_is_from_which(tmp_path):
+    """Episodes of this code in ``out`` (run A), an older run's summaries for other rows (run B): each row
+    is labelled with its run; an episode of older code left in ``out`` is not passed off as this code's."""
+    rows = dict((paper.episode_key(cfg), (sec, cfg)) for sec, cfg in paper.plan(quick=False))
+    this, older, stale = (
+        "box-z0.6-trans-rot-v0.3-edft+-ff-s1-d20",
+        "drill-z0.9-trans-v0.2-edft+-s1-d20",
+        "box-z0.9-stop-go-v0.3-edft+-ff-s1-d20",
+    )
+    code = paper.code_version()
+
+    def write(directory, key, servo_mm, stamp=None):
+        (directory / key).mkdir(parents=True)
+        summary = {**dict.fromkeys(paper.METRICS, 1.0), "servo_pos_rms_mm": servo_mm, "completed": True}
+        (directory / key / "summary.json").write_text(json.dumps({**summary, "lost_at_s": None, "loss": {}}))
+        if stamp is not None:
+            (directory / key / "config_hash").write_text(stamp)
+
+    write(tmp_path / "out" / "episodes", this, 11.5, paper.config_hash(rows[this][1], code))
+    write(tmp_path / "out" / "episodes", stale, 9.0, "0" * 64)  # run on other code
+    write(tmp_path / "r3", older, 57.7)
+    write(tmp_path / "r3", this, 99.0)  # the older run's figure for a row this run has: not used
+    episodes, runs = paper.collect(tmp_path / "out", [("B", tmp_path / "r3")])
+    assert runs == {this: "A", older: "B"}
+    assert {(sec, key) for sec, key, _, _ in episodes} == {(rows[this][0], this), (rows[older][0], older)}
+    assert [s["servo_pos_rms_mm"] for _, key, _, s in episodes if key == this] == [11.5]
+    text = paper.report(tmp_path / "out", episodes, False, 0.0, runs=runs, run_notes=["A: this code", "B: round 3"])
+    assert "- A: this code" in text and "- B: round 3" in text and "episodes run in" not in text
+    ff_row = next(line for line in text.splitlines() if line.startswith("| box | 0.6 | trans-rot"))
+    drill_row = next(line for line in text.splitlines() if line.startswith("| drill | 0.9 | trans | 0.2"))
+    assert f"[1](episodes/{this}/summary.json) (A)" in ff_row and "11.50" in ff_row
+    assert f"[1](episodes/{older}/summary.json) (B)" in drill_row and "57.70" in drill_row
