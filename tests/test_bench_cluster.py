@@ -190,3 +190,21 @@ def test_the_sweep_says_whether_the_arm_or_the_tracker_gave_out():
     assert "neither" in paper._sweep_verdict({**held, "joint_speed_max_ratio": 0.6})
     lost = {**held, "completed": False, "lost_at_s": 1.4, "gave_out": "tracker"}
     assert paper._sweep_verdict(lost) == "lost at 1.40 s, the tracker gave out"
+
+
+def test_tasks_start_in_the_order_given_whatever_the_worker_queues(cluster):
+    """The first task is long and the keys are of different dask groups (like the suite's objects), so
+    dask would assign every task to a worker's queue at submission: the worker left free would then run
+    its own queue (every other task) ahead of the busy worker's. Only as many on the cluster as it has
+    threads keeps the order given."""
+    address, _ = cluster
+    names = ["alpha", "bravo", "charlie", "delta", "echo", "foxtrot", "golf", "hotel"]
+    # Each task prints when it started (a library function: workers cannot import this test module).
+    code = "import sys, time; print(time.time(), flush=True); time.sleep(float(sys.argv[1]))"
+    tasks = {name: ([sys.executable, "-c", code, "4.0" if i == 0 else "0.3"],) for i, name in enumerate(names)}
+    started: dict[str, float] = {}
+    failed = run_tasks(address, subprocess.check_output, tasks, lambda k, out: started.__setitem__(k, float(out)))
+    assert failed == {}
+    order = sorted(started, key=started.__getitem__)
+    # Two workers: the first two start together; every later one only after those before it.
+    assert set(order[:2]) == set(names[:2]) and order[2:] == names[2:], order

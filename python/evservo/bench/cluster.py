@@ -87,8 +87,14 @@ def run_tasks(
     connect_timeout_s: float = 10.0,
 ) -> dict[str, str]:
     """Submit ``fn(*args)`` for every ``key: args`` of ``tasks`` to the cluster at ``scheduler``
-    (``tcp://HOST:PORT``); call ``on_done(key, result)`` in this process as each finishes. Returns the
-    failed tasks as ``key: reason``. Raises :class:`ConnectionError` if the scheduler cannot be reached."""
+    (``tcp://HOST:PORT``), in the mapping's order, which is the order they start in (first = most
+    important); call ``on_done(key, result)`` in this process as each finishes. Returns the failed tasks
+    as ``key: reason``. Raises :class:`RuntimeError` if the scheduler cannot be reached.
+
+    Only as many tasks as the cluster has worker threads are on it at a time (with dask priorities in
+    the same order), the next submitted as one finishes: a task handed to the cluster is assigned to a
+    worker's own queue at once unless dask deems its group "root-ish" (large), and there it would run
+    before a more important task submitted later, whatever its priority."""
     from distributed import Client, as_completed
 
     try:
@@ -97,19 +103,30 @@ def run_tasks(
         raise RuntimeError(f"cannot reach the dask scheduler at {scheduler}: {err}") from err
     failed: dict[str, str] = {}
     futures: dict[Any, str] = {}
+    queue = list(tasks.items())
+    running = as_completed(loop=client.loop)
+
+    def top_up() -> None:
+        # Recounted each time: workers may join or leave a running cluster.
+        while queue and running.count() < max(1, sum(client.nthreads().values())):
+            key, args = queue.pop(0)
+            # pure=False: a rerun must run again, not reuse the cluster's memory of an earlier result.
+            fut = client.submit(fn, *args, key=f"evservo-{key}", pure=False, retries=RETRIES, priority=len(queue))
+            futures[fut] = key
+            running.add(fut)
+
     try:
         client.run_on_scheduler(_set_allowed_failures, ALLOWED_WORKER_DEATHS)
-        for key, args in tasks.items():
-            # pure=False: a rerun must run again, not reuse the cluster's memory of an earlier result.
-            futures[client.submit(fn, *args, key=f"evservo-{key}", pure=False, retries=RETRIES)] = key
-        for fut in as_completed(list(futures), loop=client.loop):
+        top_up()
+        for fut in running:
             key = futures[fut]
             try:
                 result = fut.result()
             except Exception as err:  # the task's own error or KilledWorker, after its retry
                 failed[key] = f"{type(err).__name__}: {err}"
-                continue
-            on_done(key, result)
+            else:
+                on_done(key, result)
+            top_up()
     except KeyboardInterrupt:
         client.cancel(list(futures), force=True)
         raise

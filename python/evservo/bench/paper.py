@@ -34,6 +34,7 @@ import platform
 import shutil
 import tempfile
 import time
+from collections.abc import Mapping, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -69,12 +70,17 @@ METRICS = (
 
 #: Event sources of the suite: the idealised edges, or the rendered reference camera with the arms.
 EVENTS = ("edges", "render")
+#: The suite's sections, in report order (``--sections`` picks some of them).
+SECTIONS = ("table1", "table2", "fig2", "feedforward", "sweep", "predictor")
 
 
-def plan(quick: bool, events: str = "edges") -> list[tuple[str, EpisodeConfig]]:
-    """(section, config) of every episode of the suite."""
+def plan(quick: bool, events: str = "edges", sections: tuple[str, ...] = SECTIONS) -> list[tuple[str, EpisodeConfig]]:
+    """(section, config) of every episode of the suite's ``sections``."""
     if events not in EVENTS:
         raise ValueError(f"unknown event source {events!r} for the paper suite; choose one of {EVENTS}")
+    unknown = sorted(set(sections) - set(SECTIONS))
+    if unknown or not sections:
+        raise ValueError(f"unknown paper-suite section(s) {unknown or sections!r}; choose from {', '.join(SECTIONS)}")
     rendered = events == "render"
     dur = (0.3 if rendered else 3.0) if quick else 20.0
     seeds = (1,) if quick else (1, 2, 3)
@@ -107,7 +113,7 @@ def plan(quick: bool, events: str = "edges") -> list[tuple[str, EpisodeConfig]]:
     for traj in ("stop-go",) if quick else ("stop-go", "reversal"):
         for predictor in PREDICTORS:
             out.append(("predictor", replace(base, trajectory=traj, feedforward=True, predictor=predictor)))
-    return out
+    return [(section, cfg) for section, cfg in out if section in sections]
 
 
 def episode_key(cfg: EpisodeConfig) -> str:
@@ -196,7 +202,12 @@ def _priority(rows: list[tuple[str, str, EpisodeConfig]], key: str, cfg: Episode
 
 
 def run_all(
-    out: Path, quick: bool, jobs: int, events: str = "edges", scheduler: str | None = None
+    out: Path,
+    quick: bool,
+    jobs: int,
+    events: str = "edges",
+    scheduler: str | None = None,
+    sections: tuple[str, ...] = SECTIONS,
 ) -> tuple[list[tuple[str, str, EpisodeConfig, dict]], int]:
     """Run (or reuse) every episode, locally (``jobs`` processes) or on the dask cluster at
     ``scheduler``; returns (section, key, config, summary) per planned row and how many episodes were
@@ -204,7 +215,7 @@ def run_all(
     cluster gave up on has the summary ``{"completed": False, "failed": reason}``."""
     from tqdm import tqdm
 
-    rows = [(section, episode_key(cfg), cfg) for section, cfg in plan(quick, events)]
+    rows = [(section, episode_key(cfg), cfg) for section, cfg in plan(quick, events, sections)]
     code = code_version()
     summaries: dict[str, dict] = {}
     todo: dict[str, EpisodeConfig] = {}
@@ -247,6 +258,30 @@ def run_all(
                 summaries[key] = {"completed": False, "failed": reason}
                 bar.update()
     return [(section, key, cfg, summaries[key]) for section, key, cfg in rows], reused
+
+
+def collect(
+    out: Path, earlier: Sequence[tuple[str, Path]] = (), quick: bool = False, events: str = "edges"
+) -> tuple[list[tuple[str, str, EpisodeConfig, dict]], dict[str, str]]:
+    """The suite's finished episodes for a report put together from several runs, without running any:
+    every planned row whose episode in ``out`` carries the current code's hash (run label ``"A"``), else
+    the first of the ``earlier`` (label, episodes directory) that holds its ``KEY/summary.json`` (older
+    code, kept for comparison). Returns the rows (section, key, config, summary) and each key's label."""
+    code = code_version()
+    rows, runs = [], {}
+    for section, cfg in plan(quick, events):
+        key = episode_key(cfg)
+        summary = reuse(out / "episodes" / key, cfg, code)
+        label = "A"
+        if summary is None:
+            found = [(name, d / key / "summary.json") for name, d in earlier if (d / key / "summary.json").is_file()]
+            if not found:
+                continue
+            label, path = found[0]
+            summary = _load_summary(path)
+        rows.append((section, key, cfg, summary))
+        runs[key] = label
+    return rows, runs
 
 
 def _fmt(values: list[float]) -> str:
@@ -320,8 +355,15 @@ def report(
     wall_s: float,
     reused: int = 0,
     events: str = "edges",
+    sections: tuple[str, ...] = SECTIONS,
+    runs: Mapping[str, str] | None = None,
+    run_notes: Sequence[str] = (),
 ) -> str:
-    events_flag = "" if events == "edges" else f" --events {events}"
+    """The suite's report (markdown, also written to ``out/report.md``) from ``episodes`` (section, key,
+    config, summary). ``runs``: for a report put together from several runs (:func:`collect`), each
+    episode key's run label, shown next to its figures and explained by ``run_notes`` (one line per
+    label) in place of the run's own time and count."""
+    events_flag = ("" if events == "edges" else f" --events {events}") + _sections_flag(sections)
     failed = {key: s["failed"] for _, key, _, s in episodes if "failed" in s}
     episodes = [e for e in episodes if "failed" not in e[3]]
     groups: dict[tuple, list[dict]] = {}
@@ -334,14 +376,31 @@ def report(
         "",
         f"Command: `evservo bench --suite paper{' --quick' if quick else ''}{events_flag} --jobs N --out {out}`; "
         f"evservo {evservo.__version__}, Python {platform.python_version()}, {os.cpu_count()} CPUs, "
-        f"{len({key for _, key, _, _ in episodes}) - reused} episodes run in {wall_s / 60:.1f} min"
-        f"{f' ({reused} reused from an earlier run)' if reused else ''}, "
-        f"load average {os.getloadavg()[1]:.1f} at the end (the tracker's measured "
+        + (
+            f"{len({key for _, key, _, _ in episodes}) - reused} episodes run in {wall_s / 60:.1f} min"
+            f"{f' ({reused} reused from an earlier run)' if reused else ''}, "
+            if runs is None
+            else f"{len({key for _, key, _, _ in episodes})} episodes from the runs below, "
+        )
+        + f"load average {os.getloadavg()[1]:.1f} at the end (the tracker's measured "
         "cost is charged to the simulated clock, so a busy machine lowers its rate). "
         "Every figure links to its episode's summary.json. Simulation with ground truth; the paper's numbers "
         "are from its real bench (no ground truth there).",
         "",
     ]
+    if runs is not None:
+        lines += ["**Runs**: the letter beside each figure says which run it comes from.", ""]
+        lines += [f"- {note}" for note in run_notes] + [""]
+
+    def run_of(key: str) -> str:
+        return "" if runs is None else f" ({runs[key]})"
+
+    if tuple(sections) != SECTIONS:
+        lines += [
+            f"**Sections run: {', '.join(sections)}** (`--sections`); the other tables are empty here because their "
+            "episodes were not run, not because they failed.",
+            "",
+        ]
 
     def table(section: str, title: str, note: str) -> None:
         lines.extend([f"## {title}", "", note, ""])
@@ -355,7 +414,9 @@ def report(
             rows = groups[g]
             _, obj, z, traj, v, trk, fe, ff = g
             m = {k: [r[k] for r in rows if r.get(k) is not None] for k in METRICS}
-            links = " ".join(f"[{i + 1}](episodes/{r['_key']}/summary.json)" for i, r in enumerate(rows))
+            links = " ".join(
+                f"[{i + 1}](episodes/{r['_key']}/summary.json){run_of(r['_key'])}" for i, r in enumerate(rows)
+            )
             completed = f"{sum(bool(r['completed']) for r in rows)}/{len(rows)}"
             lines.append(
                 f"| {obj} | {z:g} | {traj} | {v:g} | {trk} | {fe} | {'yes' if ff else 'no'} | {len(rows)} "
@@ -381,19 +442,20 @@ def report(
                       if sec == "sweep" and cfg.tracker == trk and s["completed"])  # fmt: skip
         top = max(held) if held else "—"
         lines.append(f"- {trk}: tracking held to the end at {held or 'no'} m/s; highest {top} m/s")
-        for _, _, cfg, s in sorted(
+        for _, key, cfg, s in sorted(
             ((sec, k, c, s) for sec, k, c, s in episodes if sec == "sweep" and c.tracker == trk),
             key=lambda e: e[2].speed_mps,
         ):
             verdict = _sweep_verdict(s)
             lines.append(
-                f"  - {cfg.speed_mps:g} m/s: {verdict}; servo {s['servo_pos_rms_mm']:.1f} mm, lag {s['lag_s']:.3f} s, "
+                f"  - {cfg.speed_mps:g} m/s{run_of(key)}: {verdict}; servo {s['servo_pos_rms_mm']:.1f} mm, "
+                f"lag {s['lag_s']:.3f} s, "
                 f"Panda's fastest joint at {s.get('joint_speed_max_ratio', float('nan')):.2f} of its limit, "
                 f"command cut to the arm's reach {100 * s.get('arm_limited_fraction', float('nan')):.0f} % "
                 f"of the time, false loss {_false_loss([s])}"
             )
     lines.append("")
-    pred = [(cfg, s) for sec, _, cfg, s in episodes if sec == "predictor"]
+    pred = [(cfg, key, s) for sec, key, cfg, s in episodes if sec == "predictor"]
     if pred:
         lines += [
             "## Beyond the paper: target predictor across the latencies",
@@ -405,9 +467,9 @@ def report(
             "| trajectory | predictor | completed | servo pos mm / rot ° | lag s | overshoot mm |",
             "|---|---|---|---:|---:|---:|",
         ]
-        for cfg, s in sorted(pred, key=lambda e: (e[0].trajectory, e[0].predictor)):
+        for cfg, key, s in sorted(pred, key=lambda e: (e[0].trajectory, e[0].predictor)):
             lines.append(
-                f"| {cfg.trajectory} | {cfg.predictor} | {'yes' if s['completed'] else 'no'} "
+                f"| {cfg.trajectory} | {cfg.predictor}{run_of(key)} | {'yes' if s['completed'] else 'no'} "
                 f"| {s['servo_pos_rms_mm']:.2f} / {s['servo_rot_rms_deg']:.2f} | {s['lag_s']:.3f} "
                 f"| {s.get('overshoot_mm', float('nan')):.1f} |"
             )
@@ -466,14 +528,28 @@ def report(
     return text
 
 
-def run(out: Path, quick: bool = False, jobs: int = 1, events: str = "edges", scheduler: str | None = None) -> dict:
+def _sections_flag(sections: tuple[str, ...]) -> str:
+    return "" if tuple(sections) == SECTIONS else f" --sections {','.join(sections)}"
+
+
+def run(
+    out: Path,
+    quick: bool = False,
+    jobs: int = 1,
+    events: str = "edges",
+    scheduler: str | None = None,
+    sections: tuple[str, ...] = SECTIONS,
+) -> dict:
+    """Run (or reuse) the episodes of the suite's ``sections`` and write ``report.md`` and
+    ``results.json`` into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    episodes, reused = run_all(out, quick, jobs, events, scheduler)
+    episodes, reused = run_all(out, quick, jobs, events, scheduler, sections)
     wall = time.perf_counter() - t0
-    report(out, episodes, quick, wall, reused, events)
+    report(out, episodes, quick, wall, reused, events, sections)
     where = f"--scheduler {scheduler}" if scheduler else f"--jobs {jobs}"
     flags = f"{' --quick' if quick else ''}{'' if events == 'edges' else f' --events {events}'}"
+    flags += _sections_flag(sections)
     results = {
         "command": f"evservo bench --suite paper{flags} {where} --out {out}",
         "evservo": evservo.__version__,

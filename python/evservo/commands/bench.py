@@ -26,14 +26,26 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--jobs must be at least 1")
     if args.cache is not None and args.suite != "objects":
         raise ValueError("--cache applies to the objects suite only")
+    if args.sections is not None and args.suite != "paper":
+        raise ValueError("--sections applies to the paper suite only")
+    if args.suite == "paper":
+        from evservo.bench import paper
+
+        sections = paper.SECTIONS if args.sections is None else tuple(x.strip() for x in args.sections.split(","))
+        paper.plan(args.quick, args.events, sections)  # a bad --sections is an error before any output
     # Checked before any episode runs; the paper suite's finished episodes in it are reused.
     prepare_out_dir(args.out, stale=REPORTS[args.suite])
     if args.results is not None:
         check_out_file(args.results, (".md",), option="--results")
     if args.suite == "paper":
-        from evservo.bench import paper
-
-        paper.run(Path(args.out), quick=args.quick, jobs=args.jobs, events=args.events, scheduler=args.scheduler)
+        paper.run(
+            Path(args.out),
+            quick=args.quick,
+            jobs=args.jobs,
+            events=args.events,
+            scheduler=args.scheduler,
+            sections=sections,
+        )
         print(f"wrote {Path(args.out) / 'report.md'} and results.json")
         _refresh(args, "paper" if args.events == "edges" else f"paper-{args.events}", Path(args.out) / "report.md")
         return 0
@@ -101,6 +113,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--scheduler",
         metavar="tcp://HOST:PORT",
         help="run the paper suite's episodes on this running dask.distributed cluster instead of --jobs",
+    )
+    b.add_argument(
+        "--sections",
+        metavar="A,B",
+        help="paper suite: run only these sections (comma-separated: table1, table2, fig2, feedforward, sweep, "
+        "predictor); the report says which ran",
     )
     b.add_argument(
         "--cache",
