@@ -1,6 +1,9 @@
 //! Distance-field build and sampling on a realistic 400×400 ROI of a 1280×720 sensor: edge-like
 //! segments (2 px thick, 10 % of their pixels missing) plus sparse noise, 15 % of pixels active.
 
+mod clock;
+
+use clock::BenchClock;
 use criterion::{criterion_group, criterion_main, Criterion};
 use evcore::field::{DistanceField, FieldParams};
 use evcore::rng::Rng;
@@ -51,7 +54,7 @@ fn edge_mask(rng: &mut Rng) -> Vec<u8> {
     mask
 }
 
-fn bench_field(c: &mut Criterion) {
+fn bench_field(c: &mut Criterion<BenchClock>) {
     let mut rng = Rng::new(42);
     let mask = edge_mask(&mut rng);
     let mut field = DistanceField::new(FieldParams::default()).unwrap();
@@ -90,5 +93,9 @@ fn bench_field(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench_field);
+criterion_group! {
+    name = benches;
+    config = clock::config();
+    targets = bench_field
+}
 criterion_main!(benches);

@@ -5,6 +5,9 @@
 //! uniform noise, which defeats the caches the way real background activity does. SCARF is also
 //! run on the edges alone and on noise alone to separate compute from cache misses.
 
+mod clock;
+
+use clock::BenchClock;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use evcore::rng::Rng;
 use evcore::surface::{Eros, EventSurface, FixedCount, Scarf};
@@ -41,7 +44,7 @@ fn moving_rectangle_with_noise(seed: u64, noise: f64) -> Vec<u32> {
         .collect()
 }
 
-fn bench(c: &mut Criterion) {
+fn bench(c: &mut Criterion<BenchClock>) {
     let pixels = moving_rectangle_with_noise(1, 0.2);
     let clean = moving_rectangle_with_noise(1, 0.0);
     let noise = moving_rectangle_with_noise(1, 1.0);
@@ -93,5 +96,9 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench);
+criterion_group! {
+    name = benches;
+    config = clock::config();
+    targets = bench
+}
 criterion_main!(benches);

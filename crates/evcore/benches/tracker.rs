@@ -3,8 +3,10 @@
 //! 20 % noise. An *update* is one published pose: the field rebuilt from the active set, then one
 //! LM or one search step. Also the solver steps alone on a fixed field.
 
+mod clock;
 mod common;
 
+use clock::BenchClock;
 use common::{pose, textured_box};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use evcore::field::{DistanceField, FieldParams};
@@ -62,7 +64,7 @@ fn edge_events(cam: &Camera, mesh: &evcore::mesh::Mesh, seed: u64) -> EventBatch
     batch
 }
 
-fn bench(c: &mut Criterion) {
+fn bench(c: &mut Criterion<BenchClock>) {
     let cam = Camera::imx636();
     let mesh = textured_box([0.16, 0.21, 0.06], 1);
     let points = extract_point_set(&mesh, &cam.rectified(), &pose(), &PointSetParams::default())
@@ -189,5 +191,9 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench);
+criterion_group! {
+    name = benches;
+    config = clock::config();
+    targets = bench
+}
 criterion_main!(benches);
