@@ -88,6 +88,30 @@ def test_stats_are_live_while_the_thread_runs(camera, still_box):
         assert not trk.latest().lost
 
 
+def test_latency_is_booked_for_every_batch_and_bounds_each_pose(camera, still_box):
+    T, px = still_box
+    trk = evservo.Tracker(camera, "box", T, ingest_core_share=None)
+    assert trk.latency()["oldest_n"] == 0 and trk.latency()["oldest_p99_s"] is None
+    with trk:
+        trk.start()
+        pushed = []
+        for k in range(20):
+            pushed.append(time.perf_counter())
+            trk.push(batch(px, 1000 * k))
+            time.sleep(0.002)
+        assert wait_for(lambda: trk.latest().t_us == 19_999)
+        waited = time.perf_counter() - pushed[0]
+        lat = trk.latency()
+        est = trk.latest()
+    # Every batch is booked once under the oldest stamp; at most one sample per batch newest.
+    assert lat["oldest_n"] == 20 and 1 <= lat["newest_n"] <= 20
+    assert 0 < lat["oldest_p50_s"] <= lat["oldest_p99_s"] <= lat["oldest_max_s"] <= waited
+    assert lat["newest_max_s"] <= lat["oldest_max_s"]
+    # A pose's oldest batch is no newer than its newest one.
+    if est.oldest_latency_s is not None:
+        assert est.oldest_pushed_ns <= est.pushed_ns and est.oldest_latency_s >= est.latency_s
+
+
 def test_latest_and_push_race_start_and_stop_without_borrow_errors(camera, still_box):
     T, px = still_box
     trk = evservo.Tracker(camera, "box", T)

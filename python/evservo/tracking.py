@@ -28,6 +28,11 @@ PRIORITIES = ("normal", "high")
 #: SCHED_FIFO priority of the solver thread with priority="high": above ordinary real-time helpers
 #: (1-49 by convention) and below the kernel's own threaded interrupt handlers (50).
 FIFO_PRIORITY = 40
+#: With priority="high" the solver thread keeps busy at most this share of the time while it has
+#: work, resting in short pauses after its steps. Linux reserves 5 % of every second (by default)
+#: for ordinary tasks on a CPU a real-time thread keeps busy and takes it in one ~50 ms piece, which
+#: would stall the solver once a second; resting 10 % in slivers leaves nothing to take.
+REALTIME_BUSY_SHARE = 0.9
 
 Estimate = _evcore.Estimate
 
@@ -255,6 +260,7 @@ class Tracker:
                 stacklevel=2,
             )
             return "normal"
+        self._core.limit_busy_share(REALTIME_BUSY_SHARE)
         return "high"
 
     def push(self, events: np.ndarray) -> None:
@@ -301,6 +307,11 @@ class Tracker:
     def running(self) -> bool:
         return self._core.running
 
+    @property
+    def solver_thread_id(self) -> int | None:
+        """Kernel id of the running solver thread (Linux; None when not running or unknown)."""
+        return self._core.solver_thread_id
+
     def reset_pose(self, T_c_o: np.ndarray) -> None:
         """Re-initialise the pose (synchronous only); the front-end keeps its events. The estimate
         reads ``lost`` until the next update confirms the pose."""
@@ -325,6 +336,14 @@ class Tracker:
         ``jumps_rejected``, and the global searches run while lost: ``reacquire_passes``,
         ``reacquire_seconds``."""
         return self._core.stats()
+
+    def latency(self) -> dict[str, float | None]:
+        """Event-to-pose latency booked by the tracker itself (seconds; see ``Estimate.latency_s``
+        and ``Estimate.oldest_latency_s``): ``newest_*`` over the batches that were the newest event
+        behind some pose, ``oldest_*`` a bound for every batch (publication of the first pose that
+        contains it minus the push of the oldest batch that pose took in). Keys ``*_n`` (samples),
+        ``*_p50_s``, ``*_p99_s``, ``*_max_s`` (None before any sample)."""
+        return self._core.latency()
 
     def projected_points(self) -> np.ndarray:
         """S* projected at the current pose, (N, 2) rectified pixels."""

@@ -15,6 +15,7 @@ pub mod field;
 pub mod freshness;
 pub mod image;
 pub mod io;
+pub mod latency;
 pub mod mesh;
 pub mod pointset;
 pub mod render;

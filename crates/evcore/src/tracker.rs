@@ -30,6 +30,7 @@ use crate::event::{validate_events, EventRecords};
 use crate::field::{DistanceField, FieldParams};
 use crate::freshness::{max_age_us, MotionMemory, Recency};
 use crate::image::Roi;
+use crate::latency::{Claim, LatencyHistogram, PendingBatches};
 use crate::se3::unit_twist;
 use crate::se3::Pose;
 use crate::solve::cost::{apply_increment, centroid, cost_stats, Pinhole, Rigid32, ViewMask};
@@ -121,7 +122,8 @@ pub enum IngestLimit {
     /// Keep every event whatever it costs the caller.
     Off,
     /// Keep at most as many events as ingest can insert using this share of the caller's core
-    /// (0..=1], measured on the fly (so a busier machine thins more).
+    /// (0..=1], measured on the fly (so a busier machine thins more), but never fewer than the
+    /// tracker needs to follow a fast edge (2 Mev/s of event time).
     CoreShare(f64),
     /// Keep at most this many events per second of event time (a fixed, reproducible cap).
     EventsPerSecond(f64),
@@ -178,12 +180,24 @@ pub struct Estimate {
     /// pushed_ns` is the event-to-pose latency of its newest event, measured where it happens,
     /// whoever reads the estimate and however late.
     pub published_ns: u64,
+    /// When the oldest batch that no earlier estimate contained was pushed (ns; 0 when this
+    /// update took in no new batch). `published_ns − oldest_pushed_ns` bounds the latency of
+    /// every event this estimate is the first to use, including batches superseded before any
+    /// step could show them as the newest.
+    pub oldest_pushed_ns: u64,
 }
 
 impl Estimate {
     /// Event-to-pose latency of the newest event behind this estimate (ns; None before any event).
     pub fn latency_ns(&self) -> Option<u64> {
         (self.pushed_ns != 0).then(|| self.published_ns.saturating_sub(self.pushed_ns))
+    }
+
+    /// Event-to-pose latency of the oldest batch first used by this estimate (ns; None when it
+    /// took in no new batch): a bound for every event it is the first to use.
+    pub fn oldest_latency_ns(&self) -> Option<u64> {
+        (self.oldest_pushed_ns != 0)
+            .then(|| self.published_ns.saturating_sub(self.oldest_pushed_ns))
     }
 }
 
@@ -274,7 +288,7 @@ fn hold_axes(prior: &Pose, new: Pose, axes: &[(Vector3<f64>, Vector3<f64>)]) -> 
 }
 
 /// Words of an encoded [`Estimate`].
-const ESTIMATE_WORDS: usize = 18;
+const ESTIMATE_WORDS: usize = 19;
 
 /// A lock-free single-writer cell holding the newest estimate (a seqlock over its words).
 pub struct EstimateCell {
@@ -314,6 +328,7 @@ impl EstimateCell {
             u64::from(e.confidence.to_bits()),
             e.pushed_ns,
             e.published_ns,
+            e.oldest_pushed_ns,
         ]
     }
 
@@ -337,6 +352,7 @@ impl EstimateCell {
             confidence: f32::from_bits(w[15] as u32),
             pushed_ns: w[16],
             published_ns: w[17],
+            oldest_pushed_ns: w[18],
         }
     }
 
@@ -438,6 +454,14 @@ pub struct TrackerOutput {
     reacquire_ns: AtomicU64,
     /// Kernel thread id of the running solver thread (Linux), 0 when unknown or not running.
     solver_tid: AtomicI64,
+    /// Batches ingested since the last step claimed them.
+    pending: PendingBatches,
+    /// Latency of each newest batch to the first estimate holding it (one sample per batch that
+    /// was ever the newest behind a pose).
+    newest_latency: LatencyHistogram,
+    /// Latency bound of every batch: its first estimate's publication minus the push of the oldest
+    /// batch that estimate took in (one sample per batch).
+    oldest_latency: LatencyHistogram,
 }
 
 impl TrackerOutput {
@@ -457,6 +481,9 @@ impl TrackerOutput {
             reacquire_passes: AtomicU64::new(0),
             reacquire_ns: AtomicU64::new(0),
             solver_tid: AtomicI64::new(0),
+            pending: PendingBatches::default(),
+            newest_latency: LatencyHistogram::default(),
+            oldest_latency: LatencyHistogram::default(),
         }
     }
 
@@ -487,6 +514,13 @@ impl TrackerOutput {
     fn newest(&self) -> Option<(i64, u64)> {
         self.newest.get()
     }
+
+    /// Event-to-pose latencies so far: of each newest batch (`newest`, as
+    /// [`Estimate::latency_ns`]) and the bound of every batch (`oldest`, as
+    /// [`Estimate::oldest_latency_ns`], one sample per batch).
+    pub fn latency(&self) -> (&LatencyHistogram, &LatencyHistogram) {
+        (&self.newest_latency, &self.oldest_latency)
+    }
 }
 
 /// Decides which fraction of a batch to keep under overload (see the module doc).
@@ -511,6 +545,13 @@ const RATE_WINDOW_US: i64 = 1000;
 const MIN_TIMED_EVENTS: usize = 256;
 /// Never keep less than this fraction: the tracker must still see every edge.
 const MIN_KEEP: f64 = 1.0 / 256.0;
+/// Nor fewer than this many events per µs of event time when thinning by core share. SCARF keeps
+/// a fixed count per block, so a thinner stream refreshes each block more slowly: at 0.4–1 Mev/s
+/// kept (what a loaded core's share bought at 100 Mev/s offered) the active set of a box edge
+/// moving at 0.3 m/s spans several milliseconds of motion and the pose stays behind on it (lost
+/// within 50 ms in the latency suite), while 1.5–2 Mev/s of the same stream tracks to 2 mm.
+/// Inserting 2 Mev/s costs about 5 % of a core, so the floor stays well within any share.
+const MIN_KEPT_EV_PER_US: f64 = 2.0;
 
 impl Thinning {
     fn new(limit: IngestLimit) -> Self {
@@ -560,7 +601,8 @@ impl Thinning {
                     return 1.0;
                 }
                 // Per µs of event time: rate·(validate + keep·insert) ns ≤ share·1000 ns.
-                (share * 1e3 / rate - self.validate_ns) / self.insert_ns
+                let budget = (share * 1e3 / rate - self.validate_ns) / self.insert_ns;
+                budget.max(MIN_KEPT_EV_PER_US / rate)
             }
         };
         keep.clamp(MIN_KEEP, 1.0)
@@ -673,6 +715,7 @@ impl Ingest {
         self.out.ingested.fetch_add(kept as u64, Ordering::Relaxed);
         // Release: a solver that sees this time (or batch count) also sees the events in its mask.
         self.out.newest.set(last_t, pushed_ns);
+        self.out.pending.mark(pushed_ns);
         self.out.batches.fetch_add(1, Ordering::Release);
         Ok(())
     }
@@ -732,6 +775,8 @@ pub struct Solver {
     had_pose: bool,
     /// Event time (µs) of the last global pass.
     last_global_us: Option<i64>,
+    /// The batches this update took in, claimed at its start.
+    claim: Claim,
 }
 
 fn check_pose(pose: &Pose) -> Result<()> {
@@ -790,6 +835,7 @@ impl Solver {
                 lost: true,
                 pushed_ns: 0,
                 published_ns: 0,
+                oldest_pushed_ns: 0,
             },
             config,
             mask: Vec::new(),
@@ -804,15 +850,28 @@ impl Solver {
             evidence: Evidence::default(),
             had_pose: true,
             last_global_us: None,
+            claim: Claim::default(),
         };
         solver.publish();
         Ok(solver)
     }
 
-    /// Stamp the estimate with the time and hand it to readers.
+    /// Stamp the estimate with the time and the batches it is the first to contain, hand it to
+    /// readers and book its latencies.
     fn publish(&mut self) {
+        let claim = std::mem::take(&mut self.claim);
+        let newest_was = self.out.latest().pushed_ns;
+        self.last.oldest_pushed_ns = claim.oldest_pushed_ns;
         self.last.published_ns = crate::clock::now_ns();
         self.out.latest.publish(&self.last);
+        if self.last.pushed_ns != newest_was {
+            if let Some(ns) = self.last.latency_ns() {
+                self.out.newest_latency.record(ns, 1);
+            }
+        }
+        if let Some(ns) = self.last.oldest_latency_ns() {
+            self.out.oldest_latency.record(ns, claim.count);
+        }
     }
 
     /// (event time µs, push stamp ns) of the newest batch, or the last estimate's before any.
@@ -853,8 +912,10 @@ impl Solver {
     /// One update: rebuild the field from the current active set and run the next scheduled step
     /// (or, while lost with a template bank, one global search).
     fn step(&mut self) -> Estimate {
-        // Read before the mask: every event up to this time is in what the mask shows.
+        // Both read before the mask: every event up to this time, and every batch claimed, is in
+        // what the mask shows.
         let newest = self.newest();
+        self.claim = self.out.pending.claim();
         let t_us = newest.0;
         if self.searching {
             if let Some(bank) = self.bank.clone() {
@@ -998,6 +1059,7 @@ impl Solver {
             lost,
             pushed_ns: newest.1,
             published_ns: 0,
+            oldest_pushed_ns: 0,
         };
         self.publish();
         let ns = started.elapsed().as_nanos() as u64;
@@ -1233,6 +1295,7 @@ impl TrackerCore {
             lost: true,
             pushed_ns: 0,
             published_ns: 0,
+            oldest_pushed_ns: 0,
         };
         let out = Arc::new(TrackerOutput::new(&placeholder));
         let recency = Arc::new(Recency::new(&camera, &camera.rectified()));
@@ -1401,7 +1464,7 @@ pub struct StartFailed {
 pub struct ThreadedTracker {
     ingest: Ingest,
     out: Arc<TrackerOutput>,
-    stop: Arc<AtomicBool>,
+    control: Arc<Control>,
     handle: Option<JoinHandle<Solver>>,
     thread: Thread,
     /// The process that started the thread: after `fork()` a child has the memory but not the thread.
@@ -1424,7 +1487,7 @@ impl ThreadedTracker {
         let TrackerCore { ingest, solver } = core;
         let rebuild = (solver.sensor, solver.points.clone(), solver.config.clone());
         let out = Arc::clone(&solver.out);
-        let stop = Arc::new(AtomicBool::new(false));
+        let control = Arc::new(Control::default());
         // The solver waits in a slot the thread takes it from, so that a failed spawn (which
         // drops the closure) does not take the solver with it.
         let slot = Arc::new(Mutex::new(Some(solver)));
@@ -1432,21 +1495,21 @@ impl ThreadedTracker {
         let idle_at_start = out.stats().events_ingested == 0;
         let batches_at_start = out.batches.load(Ordering::Acquire);
         let spawned = {
-            let (slot, stop) = (Arc::clone(&slot), Arc::clone(&stop));
+            let (slot, control) = (Arc::clone(&slot), Arc::clone(&control));
             builder.name("evservo-tracker".into()).spawn(move || {
                 let solver = slot
                     .lock()
                     .unwrap_or_else(PoisonError::into_inner)
                     .take()
                     .expect("the solver is handed over exactly once");
-                run(solver, &stop, batches_at_start, idle_at_start)
+                run(solver, &control, batches_at_start, idle_at_start)
             })
         };
         match spawned {
             Ok(handle) => Ok(Self {
                 ingest,
                 out,
-                stop,
+                control,
                 thread: handle.thread().clone(),
                 handle: Some(handle),
                 pid: std::process::id(),
@@ -1522,6 +1585,28 @@ impl ThreadedTracker {
         None
     }
 
+    /// Keep the solver thread busy at most `share` (0..=1] of the wall time while it has work,
+    /// spread as short pauses after its steps; None = no limit (the default).
+    ///
+    /// For a solver at real-time priority (SCHED_FIFO): Linux reserves a share of every second for
+    /// ordinary tasks waiting on a CPU that a real-time thread keeps busy (the fair server or RT
+    /// throttling, 50 ms per second by default), and takes it in one piece: a solver that never
+    /// rests would stop for ~50 ms once a second, which is a lost pose on a moving object. Resting
+    /// a little after each step gives the ordinary tasks their share in slivers instead.
+    pub fn limit_busy_share(&self, share: Option<f64>) -> Result<()> {
+        let bits = match share {
+            None => 0,
+            Some(s) => {
+                ensure(s.is_finite() && s > 0.0 && s <= 1.0, || {
+                    format!("the busy share {s} must be in (0, 1]")
+                })?;
+                s.to_bits()
+            }
+        };
+        self.control.busy_share.store(bits, Ordering::Relaxed);
+        Ok(())
+    }
+
     /// True while the solver thread runs in this process.
     pub fn is_running(&self) -> bool {
         !self.forked() && self.handle.as_ref().is_some_and(|h| !h.is_finished())
@@ -1561,7 +1646,7 @@ impl ThreadedTracker {
             std::mem::forget(handle);
             return None;
         }
-        self.stop.store(true, Ordering::Release);
+        self.control.stop.store(true, Ordering::Release);
         self.thread.unpark();
         handle.join().ok()
     }
@@ -1620,33 +1705,68 @@ fn kernel_thread_id() -> Option<i64> {
     link.file_name()?.to_str()?.parse().ok()
 }
 
-fn run(solver: Solver, stop: &AtomicBool, mut seen: u64, idle_at_start: bool) -> Solver {
+fn run(solver: Solver, control: &Control, mut seen: u64, idle_at_start: bool) -> Solver {
     let tid = kernel_thread_id().unwrap_or(-1);
     solver.out.solver_tid.store(tid, Ordering::Release);
-    let solver = run_steps(solver, stop, &mut seen, idle_at_start);
+    let solver = run_steps(solver, control, &mut seen, idle_at_start);
     solver.out.solver_tid.store(0, Ordering::Release);
     solver
 }
 
-fn run_steps(mut solver: Solver, stop: &AtomicBool, seen: &mut u64, idle_at_start: bool) -> Solver {
+fn run_steps(mut solver: Solver, control: &Control, seen: &mut u64, idle_at_start: bool) -> Solver {
     // After a full cycle without new events the field cannot change, so the solver rests until
     // the next push instead of spinning.
     let cycle = solver.schedule.cycle_len();
     let mut steps_without_events = if idle_at_start { cycle } else { 0 };
-    while !stop.load(Ordering::Acquire) {
+    let mut owed = Duration::ZERO;
+    while !control.stop.load(Ordering::Acquire) {
         let batches = solver.out.batches.load(Ordering::Acquire);
         if batches != *seen {
             *seen = batches;
             steps_without_events = 0;
         }
         if steps_without_events >= cycle {
+            // Resting here pays off what the busy-share limit is owed (a park can end at once).
+            let rested = Instant::now();
             thread::park_timeout(Duration::from_millis(5));
+            owed = owed.saturating_sub(rested.elapsed());
             continue;
         }
+        let started = Instant::now();
         solver.step();
         steps_without_events += 1;
+        if let Some(share) = control.busy_share() {
+            owed += started.elapsed().mul_f64(1.0 / share - 1.0);
+            if owed >= MIN_PAUSE {
+                let paused = Instant::now();
+                thread::sleep(owed);
+                owed = owed.saturating_sub(paused.elapsed());
+            }
+        }
     }
     solver
+}
+
+/// Shortest pause the busy-share limit takes (shorter ones are owed until they add up: a sleep
+/// costs a few µs and the timer's slack).
+const MIN_PAUSE: Duration = Duration::from_micros(100);
+
+/// What the owner of a [`ThreadedTracker`] tells its solver thread.
+#[derive(Debug, Default)]
+struct Control {
+    stop: AtomicBool,
+    /// Largest share of wall time the thread may spend in steps while it has work (f64 bits;
+    /// 0 = no limit). See [`ThreadedTracker::limit_busy_share`].
+    busy_share: AtomicU64,
+}
+
+impl Control {
+    fn busy_share(&self) -> Option<f64> {
+        match self.busy_share.load(Ordering::Relaxed) {
+            0 => None,
+            bits => Some(f64::from_bits(bits)),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -1746,6 +1866,66 @@ mod tests {
         assert!(again.published_ns >= est.published_ns);
         core.reset_events();
         assert_eq!(core.output().newest(), None);
+    }
+
+    #[test]
+    fn the_oldest_stamp_is_the_first_batch_a_pose_takes_in() {
+        let (mut core, pts, pose) = core(IngestLimit::Off);
+        let cam = *core.camera();
+        let before = crate::clock::now_ns();
+        core.ingest(outline_events(&cam, &pts, &pose, 0, 2000).as_slice())
+            .unwrap();
+        let between = crate::clock::now_ns();
+        thread::sleep(Duration::from_millis(3));
+        core.ingest(outline_events(&cam, &pts, &pose, 1000, 2000).as_slice())
+            .unwrap();
+        let est = core.step();
+        // The first batch's push, not the second's (which is the newest, `pushed_ns`).
+        assert!(
+            (before..=between).contains(&est.oldest_pushed_ns),
+            "{est:?}"
+        );
+        assert!(est.pushed_ns > between);
+        let bound = est.oldest_latency_ns().unwrap();
+        assert!(bound >= 3_000_000 && bound > est.latency_ns().unwrap());
+        // A step with nothing new takes in no batch.
+        let again = core.step();
+        assert_eq!(
+            (again.oldest_pushed_ns, again.oldest_latency_ns()),
+            (0, None)
+        );
+        // Booked by the tracker: both batches under the first pose's bound, one newest sample.
+        let out = core.output();
+        let (newest, oldest) = out.latency();
+        assert_eq!((newest.count(), oldest.count()), (1, 2));
+        assert_eq!(oldest.max_ns(), Some(bound));
+        assert!(oldest.quantile_ns(0.5).unwrap() >= bound.min(newest.max_ns().unwrap()));
+    }
+
+    #[test]
+    fn a_busy_share_rests_the_solver_between_steps() {
+        let (core, pts, pose) = core(IngestLimit::Off);
+        let cam = *core.camera();
+        let started = Instant::now();
+        let mut tr = ThreadedTracker::start(core).ok().expect("thread");
+        assert!(tr.limit_busy_share(Some(1.5)).is_err());
+        tr.limit_busy_share(Some(0.25)).unwrap();
+        // New events every 200 µs: without the limit the solver would never rest.
+        for k in 0..250 {
+            tr.push(outline_events(&cam, &pts, &pose, k * 200, 400).as_slice())
+                .unwrap();
+            thread::sleep(Duration::from_micros(200));
+        }
+        let core = tr.stop();
+        let elapsed = started.elapsed().as_secs_f64();
+        let s = core.stats();
+        let in_steps = s.lm_seconds + s.search_seconds;
+        assert!(s.lm_steps + s.search_steps > 10, "{s:?}");
+        // Resting is owed 3 s for every 1 s of steps; all of it is paid but the last < 100 µs.
+        assert!(
+            elapsed >= in_steps / 0.25 - MIN_PAUSE.as_secs_f64(),
+            "{elapsed} s elapsed for {in_steps} s in steps"
+        );
     }
 
     #[test]
@@ -1859,6 +2039,51 @@ mod tests {
     }
 
     #[test]
+    fn a_core_share_never_thins_below_the_rate_the_tracker_needs() {
+        let mut thin = Thinning::new(IngestLimit::CoreShare(0.5));
+        // Costs a loaded core measured: 6 ns to validate, 40 ns to insert an event.
+        thin.record_costs(
+            50_000,
+            50_000,
+            Duration::from_micros(300),
+            Duration::from_millis(2),
+        );
+        let offer = |thin: &mut Thinning, per_batch: usize| {
+            (0..10)
+                .map(|k| {
+                    thin.offer(
+                        per_batch,
+                        k * 500,
+                        k * 500 + 499,
+                        (k > 0).then(|| k * 500 - 1),
+                    )
+                })
+                .last()
+                .unwrap()
+        };
+        // 100 Mev/s: validation alone takes more than half the core; 2 of every 100 are kept.
+        assert!((offer(&mut thin, 50_000) - 0.02).abs() < 1e-4);
+        // 1 Mev/s fits the share whole.
+        let mut thin = Thinning::new(IngestLimit::CoreShare(0.5));
+        thin.record_costs(
+            500,
+            500,
+            Duration::from_micros(3),
+            Duration::from_micros(20),
+        );
+        assert_eq!(offer(&mut thin, 500), 1.0);
+        // 20 Mev/s at those costs: the share decides, (500/20 − 6)/40 of the events.
+        let mut thin = Thinning::new(IngestLimit::CoreShare(0.5));
+        thin.record_costs(
+            500,
+            500,
+            Duration::from_micros(3),
+            Duration::from_micros(20),
+        );
+        assert!((offer(&mut thin, 10_000) - 19.0 / 40.0).abs() < 1e-3);
+    }
+
+    #[test]
     fn a_failed_spawn_hands_the_core_back() {
         let (core, pts, pose) = core(IngestLimit::Off);
         let cam = *core.camera();
@@ -1931,6 +2156,7 @@ mod tests {
             lost: false,
             pushed_ns: seq * 7,
             published_ns: seq * 11,
+            oldest_pushed_ns: seq * 5,
         };
         let cell = Arc::new(EstimateCell::new(&mk(0)));
         assert_eq!(cell.read(), mk(0));
@@ -1944,6 +2170,7 @@ mod tests {
                     assert_eq!(e.t_us, e.seq as i64 * 10);
                     assert_eq!(e.n_events, e.seq * 3);
                     assert_eq!((e.pushed_ns, e.published_ns), (e.seq * 7, e.seq * 11));
+                    assert_eq!(e.oldest_pushed_ns, e.seq * 5);
                     assert!(e.seq >= last);
                     last = e.seq;
                 }

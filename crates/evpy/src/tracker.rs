@@ -93,6 +93,18 @@ impl PyEstimate {
     fn latency_s(&self) -> Option<f64> {
         self.inner.latency_ns().map(|ns| ns as f64 * 1e-9)
     }
+    /// When the oldest batch this estimate is the first to contain was pushed (ns; 0 when it took
+    /// in no new batch).
+    #[getter]
+    fn oldest_pushed_ns(&self) -> u64 {
+        self.inner.oldest_pushed_ns
+    }
+    /// `published_ns − oldest_pushed_ns` in seconds: a bound of the latency of every event this
+    /// estimate is the first to use (None when it took in no new batch).
+    #[getter]
+    fn oldest_latency_s(&self) -> Option<f64> {
+        self.inner.oldest_latency_ns().map(|ns| ns as f64 * 1e-9)
+    }
     fn __repr__(&self) -> String {
         let t = self.inner.pose.translation.vector;
         format!(
@@ -379,6 +391,18 @@ impl PyTracker {
         self.with_core(py, |core| core.cycle_len())
     }
 
+    /// Keep the running solver thread busy at most `share` (0..=1] of the wall time while it has
+    /// work, in short pauses after its steps (None: no limit). For a real-time solver thread, which
+    /// Linux would otherwise stop for ~50 ms once a second to let ordinary tasks run.
+    fn limit_busy_share(&self, py: Python<'_>, share: Option<f64>) -> PyResult<()> {
+        self.with_state(py, |state| match state {
+            State::Threaded(t) => t.limit_busy_share(share).map_err(to_py),
+            _ => Err(PyRuntimeError::new_err(
+                "limit_busy_share() needs a running tracker: call start() first",
+            )),
+        })?
+    }
+
     /// Kernel thread id of the running solver thread (Linux), None when not running or unknown.
     #[getter]
     fn solver_thread_id(&self, py: Python<'_>) -> PyResult<Option<i64>> {
@@ -444,6 +468,24 @@ impl PyTracker {
         d.set_item("jumps_rejected", s.jumps_rejected)?;
         d.set_item("reacquire_passes", s.reacquire_passes)?;
         d.set_item("reacquire_seconds", s.reacquire_seconds)?;
+        Ok(d)
+    }
+
+    /// Event-to-pose latency so far, booked by the solver at each publication (a dict, seconds,
+    /// lock-free): `newest_*` over the batches that were the newest behind a pose (as
+    /// `Estimate.latency_s`), `oldest_*` the bound of every batch (as `Estimate.oldest_latency_s`,
+    /// weighted by the batches each pose took in); `*_n` samples, `*_p50_s`, `*_p99_s` (upper
+    /// edges of 10 µs bins), `*_max_s`. The quantiles are None before any sample.
+    fn latency<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+        let (newest, oldest) = self.output.latency();
+        let d = pyo3::types::PyDict::new(py);
+        let s = |ns: Option<u64>| ns.map(|ns| ns as f64 * 1e-9);
+        for (name, h) in [("newest", newest), ("oldest", oldest)] {
+            d.set_item(format!("{name}_n"), h.count())?;
+            d.set_item(format!("{name}_p50_s"), s(h.quantile_ns(0.5)))?;
+            d.set_item(format!("{name}_p99_s"), s(h.quantile_ns(0.99)))?;
+            d.set_item(format!("{name}_max_s"), s(h.max_ns()))?;
+        }
         Ok(d)
     }
 

@@ -111,8 +111,9 @@ def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> Non
     )
     p.add_argument(
         "--events",
-        choices=("edges", "render"),
-        help=f"event source: the model's edges (fast) or the rendered event camera (slow) {d('event_source')}",
+        choices=("edges", "render", "render-lab"),
+        help="event source: the model's edges (fast), the rendered event camera (slow), or the rendered camera "
+        f"with the lab preset (mains flicker, clutter) {d('event_source')}",
     )
     p.add_argument(
         "--render-arms",
