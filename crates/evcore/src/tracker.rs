@@ -1122,6 +1122,11 @@ impl Solver {
         .excess();
         let firing = built && excess >= QUIET;
         if self.last.lost {
+            // Back from silence only when visibly active again: a sampled share of a few hundred
+            // blocks at the background's rate passes `QUIET` now and then by chance, and the
+            // front-end's old edges would then be trusted (occlusion-0.5s: 270 ms confidently
+            // wrong with `QUIET` here).
+            let firing = built && excess >= EXPECT_ACTIVE;
             // Blindness is no evidence against a trusted pose: once the events are back it is
             // judged as a trusted one is. (Held to `relock_above`, a pose tracked on while the loop
             // holds the camera still reads 0.25–0.38 as the object runs through the image, and
