@@ -2073,11 +2073,16 @@ mod tests {
         let mut tr = ThreadedTracker::start(core).ok().expect("thread");
         assert!(tr.limit_busy_share(Some(1.5)).is_err());
         tr.limit_busy_share(Some(0.25)).unwrap();
-        // New events every 200 µs: without the limit the solver would never rest.
-        for k in 0..250 {
+        // New events every 200 µs: without the limit the solver would never rest. Pushed until a
+        // dozen steps ran (a debug build's steps take milliseconds), within 20 s.
+        let mut k = 0;
+        while tr.stats().lm_steps + tr.stats().search_steps <= 12
+            && started.elapsed().as_secs() < 20
+        {
             tr.push(outline_events(&cam, &pts, &pose, k * 200, 400).as_slice())
                 .unwrap();
             thread::sleep(Duration::from_micros(200));
+            k += 1;
         }
         let core = tr.stop();
         let elapsed = started.elapsed().as_secs_f64();
