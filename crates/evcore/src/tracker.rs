@@ -28,7 +28,7 @@ use crate::confidence::{evidence, Evidence, Query};
 use crate::error::{ensure, Error, Result};
 use crate::event::{validate_events, EventRecords};
 use crate::field::{DistanceField, FieldParams};
-use crate::freshness::{max_age_us, Activity, MotionMemory, Recency};
+use crate::freshness::{max_age_us, MotionMemory, Recency};
 use crate::image::Roi;
 use crate::latency::{Claim, LatencyHistogram, PendingBatches};
 use crate::se3::unit_twist;
@@ -241,22 +241,6 @@ const AFTER_GAP_US: i64 = 100_000;
 /// (the global pass alone only accepts a pose it found itself).
 const GLOBAL_PASS_EVERY_US: i64 = 10_000;
 
-/// The window (µs of event time) over which the model's blocks must have fired to count as active.
-const ACTIVE_WINDOW_US: i64 = 10_000;
-/// Every this many model points are sampled for the activity test.
-const ACTIVITY_POINT_STRIDE: usize = 4;
-/// A trusted model whose blocks fire at least this much above their surroundings (the excess share
-/// of [`Activity::excess`]) is visibly active: its own edges are making events ...
-const EXPECT_ACTIVE: f32 = 0.15;
-/// ... and if, within this time (µs of event time) of being so, its blocks fire no more than
-/// [`QUIET`] above their surroundings, its events stopped at once while the rest of the scene
-/// goes on: it is hidden. An object that slows down (the camera following it settles, it comes to
-/// rest) fades over tens of milliseconds; its excess stays above `QUIET` or falls below it only
-/// long after it was last active (closed-loop episodes, benches/RESULTS.md "Occlusion while the
-/// camera follows": locked 0.05–1.0 with dips below 0.04 of ≤ 8 ms, hidden ≤ 0.025).
-const ACTIVE_MEMORY_US: i64 = 25_000;
-const QUIET: f32 = 0.04;
-
 /// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
 const MIN_VISIBLE_POINTS: usize = 6;
 
@@ -457,9 +441,6 @@ pub struct TrackerOutput {
     /// Time (µs) of the first event after the last gap of at least [`EVENT_GAP_US`] in the
     /// stream; `i64::MIN` if none.
     resumed_at_us: AtomicI64,
-    /// The stream time (µs) the producer has vouched for through [`Ingest::advance_time`]: no event
-    /// was missed up to it; `i64::MIN` if never.
-    stream_us: AtomicI64,
     /// Accepted non-empty batches; the solver compares it to see whether anything new arrived.
     batches: AtomicU64,
     offered: AtomicU64,
@@ -489,7 +470,6 @@ impl TrackerOutput {
             latest: EstimateCell::new(initial),
             newest: NewestBatch::new(),
             resumed_at_us: AtomicI64::new(i64::MIN),
-            stream_us: AtomicI64::new(i64::MIN),
             batches: AtomicU64::new(0),
             offered: AtomicU64::new(0),
             ingested: AtomicU64::new(0),
@@ -740,21 +720,6 @@ impl Ingest {
         Ok(())
     }
 
-    /// The stream has reached `t_us` with no events after those pushed (a decoder's time-high word
-    /// in an empty slice, a driver's empty packet): lets the solver tell a dropout from a slow
-    /// stream. Times before the newest event are refused.
-    pub fn advance_time(&mut self, t_us: i64) -> Result<()> {
-        if let Some(last) = self.last_t_us {
-            ensure(t_us >= last, || {
-                format!("stream time {t_us} µs is before the newest event ({last} µs)")
-            })?;
-        }
-        self.out.stream_us.fetch_max(t_us, Ordering::Release);
-        // Wakes a resting solver, which then sees the gap.
-        self.out.batches.fetch_add(1, Ordering::Release);
-        Ok(())
-    }
-
     /// Forget every event and the time line (e.g. after the camera restarted its clock).
     pub fn reset(&mut self) {
         self.writer.reset();
@@ -766,7 +731,6 @@ impl Ingest {
         }
         self.out.newest.set(i64::MIN, 0);
         self.out.resumed_at_us.store(i64::MIN, Ordering::Release);
-        self.out.stream_us.store(i64::MIN, Ordering::Release);
     }
 }
 
@@ -813,16 +777,6 @@ pub struct Solver {
     last_global_us: Option<i64>,
     /// The batches this update took in, claimed at its start.
     claim: Claim,
-    /// Scratch for [`Solver::activity_at`]: projected model points, and which cells of the
-    /// region around them hold one.
-    uv: Vec<(f32, f32)>,
-    near_model: Vec<bool>,
-    /// Event time (µs) of the last trusted update whose model was visibly active.
-    active_at_us: Option<i64>,
-    /// Lost because the model's blocks went quiet: trusted again only once they fire again.
-    quiet_loss: bool,
-    /// Lost only because the events stopped (see [`Solver::blind`]).
-    blind_loss: bool,
 }
 
 fn check_pose(pose: &Pose) -> Result<()> {
@@ -897,11 +851,6 @@ impl Solver {
             had_pose: true,
             last_global_us: None,
             claim: Claim::default(),
-            uv: Vec::new(),
-            near_model: Vec::new(),
-            active_at_us: None,
-            quiet_loss: false,
-            blind_loss: false,
         };
         solver.publish();
         Ok(solver)
@@ -954,9 +903,6 @@ impl Solver {
         self.searching = false;
         self.had_pose = true;
         self.unconfirmed_since_us = None;
-        self.quiet_loss = false;
-        self.blind_loss = false;
-        self.active_at_us = None;
         self.motion.reset();
         self.schedule.restart();
         self.publish();
@@ -971,15 +917,6 @@ impl Solver {
         let newest = self.newest();
         self.claim = self.out.pending.claim();
         let t_us = newest.0;
-        if self
-            .out
-            .stream_us
-            .load(Ordering::Acquire)
-            .saturating_sub(t_us)
-            >= EVENT_GAP_US
-        {
-            return self.blind(newest);
-        }
         if self.searching {
             if let Some(bank) = self.bank.clone() {
                 // Without a pose ever trusted there is nothing to track locally.
@@ -1094,7 +1031,7 @@ impl Solver {
         } else {
             0.0
         };
-        let lost = self.judge(t_us, confidence, built.is_ok());
+        let lost = self.judge(t_us, confidence);
         // A pose that fell is searched for at once; one still waiting for its first confirmation
         // (a given start pose) gets `UNCONFIRMED_US` of event time to lock before the search.
         if lost && !self.last.lost {
@@ -1151,67 +1088,16 @@ impl Solver {
         self.publish();
     }
 
-    /// Publish an update without a pose change while the events have stopped (the stream went on
-    /// for [`EVENT_GAP_US`] without one): the tracker is blind, so its pose is not to be trusted.
-    /// Nothing is searched for: once events resume the pose is tracked on from where it was
-    /// (seeing only what fired since, see [`AFTER_GAP_US`]) and trusted again from `relock_above`.
-    fn blind(&mut self, (t_us, pushed_ns): (i64, u64)) -> Estimate {
-        self.last.seq += 1;
-        self.last.t_us = t_us;
-        self.last.pushed_ns = pushed_ns;
-        self.last.confidence = 0.0;
-        self.blind_loss |= !self.last.lost;
-        self.last.lost = true;
-        self.low_since_us = None;
-        self.publish();
-        self.last
-    }
-
     /// Whether the pose published at `t_us` with `confidence` is lost. A trusted pose turns lost
     /// when its confidence stays below `lost_below` for `lost_hold_us` of event time: a step that
     /// lands a few pixels off (a search step on a fast turn) dips to 0 for an update and recovers
     /// the next, a pose that slid off the object does not. A lost one is trusted again from
     /// `relock_above` on.
-    ///
-    /// A model whose blocks fell quiet (see [`QUIET`]; only judged on a `built` field) counts as
-    /// low whatever its support: a hidden object leaves its old edges in the front-end. A pose lost
-    /// that way is trusted again only once its blocks fire again.
-    fn judge(&mut self, t_us: i64, confidence: f32, built: bool) -> bool {
-        let excess = Activity {
-            on_model: self.evidence.active,
-            around: self.evidence.active_around,
-        }
-        .excess();
-        let firing = built && excess >= QUIET;
+    fn judge(&mut self, t_us: i64, confidence: f32) -> bool {
         if self.last.lost {
-            // Back from silence only when visibly active again: a sampled share of a few hundred
-            // blocks at the background's rate passes `QUIET` now and then by chance, and the
-            // front-end's old edges would then be trusted (occlusion-0.5s: 270 ms confidently
-            // wrong with `QUIET` here).
-            let firing = built && excess >= EXPECT_ACTIVE;
-            // Blindness is no evidence against a trusted pose: once the events are back it is
-            // judged as a trusted one is. (Held to `relock_above`, a pose tracked on while the loop
-            // holds the camera still reads 0.25–0.38 as the object runs through the image, and
-            // is never trusted again: benches/RESULTS.md, "events stop".)
-            let relock = if self.blind_loss {
-                self.config.lost_below
-            } else {
-                self.config.relock_above
-            };
-            let lost = confidence < relock || (self.quiet_loss && !firing);
-            self.quiet_loss &= lost;
-            self.blind_loss &= lost;
-            return lost;
+            return confidence < self.config.relock_above;
         }
-        if built && excess >= EXPECT_ACTIVE {
-            self.active_at_us = Some(t_us);
-        }
-        let quiet = built
-            && !firing
-            && self
-                .active_at_us
-                .is_some_and(|t| (0..=ACTIVE_MEMORY_US).contains(&(t_us - t)));
-        if confidence >= self.config.lost_below && !quiet {
+        if confidence >= self.config.lost_below {
             self.low_since_us = None;
             return false;
         }
@@ -1219,7 +1105,6 @@ impl Solver {
         let lost = t_us - since >= self.config.lost_hold_us;
         if lost {
             self.low_since_us = None;
-            self.quiet_loss = quiet;
         }
         lost
     }
@@ -1230,40 +1115,7 @@ impl Solver {
         let speed = self.motion.update(t_us, pose, &self.pins[0], &self.points);
         let fresh = max_age_us(speed).map(|age| t_us - age);
         self.evidence = self.evidence_of(pose, &self.points, fresh, false);
-        let activity = self.activity_at(t_us, pose);
-        self.evidence.active = activity.on_model;
-        self.evidence.active_around = activity.around;
         self.evidence.confidence()
-    }
-
-    /// How busy the model's blocks at `pose` were over the last [`ACTIVE_WINDOW_US`] before
-    /// `t_us`, against the blocks around it (every [`ACTIVITY_POINT_STRIDE`]-th model point: a
-    /// fraction needs a few hundred samples, and each costs a look-up in a sensor-sized table).
-    fn activity_at(&mut self, t_us: i64, pose: &Pose) -> Activity {
-        let rig = Rigid32::from_pose(pose);
-        let pin = self.pins[0];
-        let (w, h) = (self.rect.width as f32, self.rect.height as f32);
-        let mut uv = std::mem::take(&mut self.uv);
-        uv.clear();
-        uv.extend(
-            self.points
-                .iter()
-                .step_by(ACTIVITY_POINT_STRIDE)
-                .filter_map(|&x| pin.project(rig.apply(x)))
-                .filter(|&(u, v)| u >= 0.0 && v >= 0.0 && u < w && v < h),
-        );
-        let activity = Roi::around(
-            uv.iter().map(|&(u, v)| (f64::from(u), f64::from(v))),
-            self.config.search_roi_margin_px,
-            self.rect.width,
-            self.rect.height,
-        )
-        .map_or_else(Activity::default, |region| {
-            self.recency
-                .activity(&uv, region, t_us - ACTIVE_WINDOW_US, &mut self.near_model)
-        });
-        self.uv = uv;
-        activity
     }
 
     /// The evidence for `pose` with `points` on the last built full-resolution field, its chance
@@ -1360,8 +1212,6 @@ impl Solver {
                 self.last.visible_fraction = 1.0;
                 self.searching = false;
                 self.had_pose = true;
-                self.quiet_loss = false;
-                self.blind_loss = false;
                 self.motion.reset();
                 self.schedule.restart();
             }
@@ -1563,11 +1413,6 @@ impl TrackerCore {
         self.ingest.reset();
     }
 
-    /// The stream has reached `t_us` without further events (see [`Ingest::advance_time`]).
-    pub fn advance_time(&mut self, t_us: i64) -> Result<()> {
-        self.ingest.advance_time(t_us)
-    }
-
     /// Set the pose (e.g. re-initialisation); the front-end keeps its events. The estimate reads
     /// lost until the next update.
     pub fn reset_pose(&mut self, t_c_o: Pose) -> Result<()> {
@@ -1713,14 +1558,6 @@ impl ThreadedTracker {
     /// Forget every event and the time line (see [`TrackerCore::reset_events`]).
     pub fn reset_events(&mut self) {
         self.ingest.reset();
-    }
-
-    /// The stream has reached `t_us` without further events (see [`Ingest::advance_time`]); wakes
-    /// the solver.
-    pub fn advance_time(&mut self, t_us: i64) -> Result<()> {
-        self.ingest.advance_time(t_us)?;
-        self.thread.unpark();
-        Ok(())
     }
 
     pub fn latest(&self) -> Estimate {
@@ -2142,112 +1979,6 @@ mod tests {
             dx < 5e-4 && dt < 0.003 && !est.lost,
             "{dx} m sideways, {dt} m off after 5 ms of events: {est:?}"
         );
-    }
-
-    /// One millisecond from `t0`: the square's outline firing (`outline`) and 50 background events
-    /// at random pixels (50 kev/s over the sensor), time-sorted.
-    fn millisecond(
-        cam: &Camera,
-        pts: &[[f32; 3]],
-        pose: &Pose,
-        t0: i64,
-        outline: bool,
-        rng: &mut crate::rng::Rng,
-    ) -> Vec<EventCd> {
-        let mut ev = if outline {
-            outline_events(cam, pts, pose, t0, 400)
-        } else {
-            Vec::new()
-        };
-        ev.extend((0..50).map(|_| {
-            let (x, y) = (
-                rng.below(u64::from(cam.width)),
-                rng.below(u64::from(cam.height)),
-            );
-            EventCd::new(x as u16, y as u16, 1, t0 + rng.below(1000) as i64)
-        }));
-        ev.sort_by_key(|e| e.t);
-        ev
-    }
-
-    #[test]
-    fn an_object_that_falls_silent_while_the_background_fires_on_reads_as_lost() {
-        // Locked on the square while its outline fires every millisecond (a followed object that
-        // keeps making events); then it is hidden: only the background fires. The front-end keeps
-        // the outline, so the pose stays supported (confidence ≈ 0.9, no motion to demand fresh
-        // events) and only the silence of the model's own blocks tells.
-        let (mut core, pts, pose) = core(IngestLimit::Off);
-        let cam = *core.camera();
-        let mut rng = crate::rng::Rng::new(5);
-        for k in 0..60 {
-            let ev = millisecond(&cam, &pts, &pose, k * 1000, true, &mut rng);
-            core.update(ev.as_slice()).unwrap();
-        }
-        assert!(!core.latest().lost);
-        let mut flagged_at = None;
-        for k in 60..200 {
-            let ev = millisecond(&cam, &pts, &pose, k * 1000, false, &mut rng);
-            let est = core.update(ev.as_slice()).unwrap();
-            if est.lost && flagged_at.is_none() {
-                flagged_at = Some(k * 1000);
-            }
-            assert_eq!(
-                est.lost,
-                flagged_at.is_some(),
-                "lost stays set at {k} ms: {est:?}"
-            );
-        }
-        let delay = flagged_at.expect("never flagged") - 60_000;
-        assert!(
-            delay <= 50_000,
-            "flagged {delay} µs after the object fell silent"
-        );
-        assert!(
-            core.evidence().support_any > 0.9,
-            "the front-end still holds the outline: {:?}",
-            core.evidence()
-        );
-        // The outline fires again: trusted again within a few milliseconds.
-        let mut est = core.latest();
-        for k in 200..205 {
-            let ev = millisecond(&cam, &pts, &pose, k * 1000, true, &mut rng);
-            est = core.update(ev.as_slice()).unwrap();
-        }
-        assert!(!est.lost, "{est:?}");
-    }
-
-    #[test]
-    fn events_that_stop_while_the_stream_goes_on_read_as_lost_within_the_gap() {
-        // Locked on the square; then the producer's slices go on every millisecond, empty (every
-        // event lost on the link). The tracker sees stream time pass without events.
-        let (mut core, pts, pose) = core(IngestLimit::Off);
-        for k in 0..10 {
-            let ev = outline_events(core.camera(), &pts, &pose, k * 1000, 400);
-            core.update(ev.as_slice()).unwrap();
-        }
-        assert!(!core.latest().lost);
-        let last_event = core.latest().t_us;
-        let mut flagged_at = None;
-        for t in (10_000..100_000).step_by(1000) {
-            core.advance_time(t).unwrap();
-            let est = core.step();
-            if est.lost && flagged_at.is_none() {
-                flagged_at = Some(t);
-            }
-            assert_eq!(est.lost, flagged_at.is_some(), "lost stays set at {t} µs");
-        }
-        let delay = flagged_at.expect("never flagged") - last_event;
-        assert!(
-            (EVENT_GAP_US..=EVENT_GAP_US + 1000).contains(&delay),
-            "flagged {delay} µs after the last event"
-        );
-        assert!(
-            core.advance_time(last_event - 1).is_err(),
-            "a stream time before the newest event is refused"
-        );
-        // Events resume where the square is: trusted again at once.
-        let ev = outline_events(core.camera(), &pts, &pose, 100_000, 400);
-        assert!(!core.update(ev.as_slice()).unwrap().lost);
     }
 
     #[test]
