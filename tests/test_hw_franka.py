@@ -3,6 +3,8 @@ served on a loopback address (realtime checks off)."""
 
 from __future__ import annotations
 
+import os
+import threading
 import time
 
 import numpy as np
@@ -78,6 +80,20 @@ def test_connect_stream_and_watchdog_stop(sim):
         # Commands stop (the pose went stale upstream): the gate halts and the arm comes to rest.
         assert wait_for(lambda: arm.gate.watchdog_halts == 1, 2.0)
         assert wait_for(lambda: at_rest(arm), 2.0)
+
+
+def test_connecting_leaves_the_calling_threads_scheduling_alone(sim):
+    # libfranka raises the connecting thread to SCHED_FIFO 99 where it may (root, as in CI); every
+    # thread started from it then inherited that, e.g. a tracker's solver spinning at top priority.
+    before = os.sched_getscheduler(0), os.sched_getparam(0)
+    with FrankaArm(sim.host, realtime="ignore") as arm:
+        stream(arm, V_Y, 0.05)
+        assert (os.sched_getscheduler(0), os.sched_getparam(0)) == before
+        seen: list[int] = []
+        th = threading.Thread(target=lambda: seen.append(os.sched_getscheduler(0)))
+        th.start()
+        th.join()
+        assert seen == [before[0]]
 
 
 def test_limits_reach_the_robot(sim):

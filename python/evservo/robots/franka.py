@@ -15,9 +15,11 @@ A lost link (``NetworkException``/``ProtocolException``) makes the call attempt 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Iterator
 from typing import Any, Literal
 
 import numpy as np
@@ -37,6 +39,26 @@ def _franky() -> Any:
     except ImportError as err:
         raise ImportError("FrankaArm needs the 'franky-control' package (pip install franky-control==2.0.0)") from err
     return franky
+
+
+@contextlib.contextmanager
+def _calling_thread_scheduling_kept() -> Iterator[None]:
+    """Restore the calling thread's scheduling policy and priority after the block.
+
+    libfranka raises the thread that connects to SCHED_FIFO 99 wherever the OS permits (root, or an
+    rtprio limit), also with ``RealtimeConfig.Ignore``, and leaves it there. That thread is the
+    caller's, usually Python's main thread, and every thread started from it afterwards inherits the
+    policy: a tracker's solver thread would then spin at the highest real-time priority and starve
+    the process's other threads. franky's own control thread sets its priority itself."""
+    if not hasattr(os, "sched_getscheduler"):
+        yield
+        return
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        yield
+    finally:
+        if (os.sched_getscheduler(0), os.sched_getparam(0)) != (policy, param):
+            os.sched_setscheduler(0, policy, param)
 
 
 class FrankaArm(GatedArm):
@@ -73,9 +95,10 @@ class FrankaArm(GatedArm):
         self._hold_ms = max(1, math.ceil(watchdog_s * 1000.0))
         config = self._fr.RealtimeConfig.Enforce if realtime == "enforce" else self._fr.RealtimeConfig.Ignore
         try:
-            self.robot = (robot_factory or self._fr.Robot)(
-                host, relative_dynamics_factor=relative_dynamics_factor, realtime_config=config
-            )
+            with _calling_thread_scheduling_kept():
+                self.robot = (robot_factory or self._fr.Robot)(
+                    host, relative_dynamics_factor=relative_dynamics_factor, realtime_config=config
+                )
         except self._fr.Exception as err:
             raise ConnectionError(f"cannot connect to the Franka robot at {host}: {err}") from err
         self._open_gate(f"Franka {host}", workspace, watchdog_s)
