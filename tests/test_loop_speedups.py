@@ -209,3 +209,17 @@ def test_pose_checks_and_rotation_error_equal_their_references():
                 outcomes.append(None)
         assert outcomes[0] == outcomes[1]
         assert (outcomes[0] is None) == (kind != 0)
+
+
+def test_poses_from_rotation_vectors_and_quaternions_equal_scipys():
+    # The closed forms that let `import evservo` skip scipy, against scipy's Rotation.
+    rng = np.random.default_rng(7)
+    for k in range(500):
+        t = rng.normal(size=3)
+        w = rng.normal(size=3) * [3.0, 1e-9, 0.3][k % 3]
+        q = rng.normal(size=4) * rng.uniform(0.1, 10.0)
+        want = np.eye(4)
+        want[:3, :3], want[:3, 3] = Rotation.from_rotvec(w).as_matrix(), t
+        np.testing.assert_allclose(geometry.pose(t, w), want, rtol=0, atol=1e-12)
+        want[:3, :3] = Rotation.from_quat(q).as_matrix()
+        np.testing.assert_allclose(geometry.pose_from_xyz_quat(*t, *q), want, rtol=0, atol=1e-12)

@@ -7,7 +7,6 @@ camera optical frame), a 4×4 float64 homogeneous matrix, translations in metres
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 _EYE3 = np.eye(3)
 _BOTTOM_ROW = np.array([0.0, 0.0, 0.0, 1.0])
@@ -39,7 +38,7 @@ def as_pose(T: object, name: str = "pose") -> np.ndarray:
 def pose(translation_m: object = (0.0, 0.0, 0.0), rotvec_rad: object = (0.0, 0.0, 0.0)) -> np.ndarray:
     """Pose from a translation (metres) and a rotation vector (radians)."""
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(np.asarray(rotvec_rad, dtype=float)).as_matrix()
+    T[:3, :3] = rotmat(np.asarray(rotvec_rad, dtype=float))
     T[:3, 3] = np.asarray(translation_m, dtype=float)
     return T
 
@@ -50,8 +49,13 @@ def pose_from_xyz_quat(x: float, y: float, z: float, qx: float, qy: float, qz: f
     n = np.linalg.norm(q)
     if not np.isfinite(n) or n < 1e-9:
         raise ValueError("quaternion must be finite and non-zero")
+    qx, qy, qz, qw = q / n
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(q / n).as_matrix()
+    T[:3, :3] = [
+        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+    ]
     T[:3, 3] = [x, y, z]
     return T
 
@@ -68,6 +72,10 @@ def inv(T: np.ndarray) -> np.ndarray:
 def interpolate(T_a: np.ndarray, T_b: np.ndarray, s: float) -> np.ndarray:
     """The pose a fraction ``s`` of the way from ``T_a`` to ``T_b``: translation linear, rotation along the
     geodesic (slerp). ``T_a``, ``T_b``: 4×4 poses, or (N, 4, 4) stacks interpolated pose by pose."""
+    # Imported here: scipy takes about a second to import, which every command (even --help) paid
+    # when this module, which `import evservo` loads, imported it at the top.
+    from scipy.spatial.transform import Rotation
+
     R_a = T_a[..., :3, :3]
     d = Rotation.from_matrix(np.swapaxes(R_a, -1, -2) @ T_b[..., :3, :3]).as_rotvec()
     T = np.zeros(np.broadcast_shapes(np.shape(T_a), np.shape(T_b)))
