@@ -238,6 +238,30 @@ def test_start_pins_the_solver_and_asks_for_real_time_priority(camera, still_box
         assert wait_for(lambda: trk.latest().t_us == 1999)
 
 
+def test_a_normal_solver_started_from_a_real_time_thread_runs_normally(camera, still_box):
+    # Threads inherit their creator's policy: a caller at SCHED_FIFO (libfranka raises the thread
+    # that connects) would otherwise get a solver spinning at real-time priority.
+    T, _ = still_box
+    trk = evservo.Tracker(camera, "box", T)
+    seen: list[tuple[str, int]] = []
+
+    def from_real_time() -> None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        except PermissionError:
+            seen.append(("refused", -1))
+            return
+        with trk:
+            seen.append((trk.start(), os.sched_getscheduler(trk._core.solver_thread_id)))
+
+    th = threading.Thread(target=from_real_time)  # not the test's own thread: its policy stays
+    th.start()
+    th.join()
+    if seen == [("refused", -1)]:
+        pytest.skip("the OS does not permit SCHED_FIFO here")
+    assert seen == [("normal", os.SCHED_OTHER)]
+
+
 def test_anti_flicker_drops_a_mains_lamp_and_tracking_holds(camera, still_box):
     """A 100 Hz lamp lights a band across the box (every lit pixel fires an ON and an OFF burst each
     10 ms); the box's edges fire every 1 ms. With the filter, the lamp's events are dropped once

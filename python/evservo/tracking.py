@@ -33,6 +33,7 @@ FIFO_PRIORITY = 40
 #: for ordinary tasks on a CPU a real-time thread keeps busy and takes it in one ~50 ms piece, which
 #: would stall the solver once a second; resting 10 % in slivers leaves nothing to take.
 REALTIME_BUSY_SHARE = 0.9
+_REALTIME_POLICIES = {getattr(os, name) for name in ("SCHED_FIFO", "SCHED_RR") if hasattr(os, name)}
 
 Estimate = _evcore.Estimate
 
@@ -225,8 +226,9 @@ class Tracker:
         Args:
             cpu: pin the solver thread to this CPU (or set of CPUs), e.g. one the producer does not
                 use; None leaves it to the OS.
-            priority: "normal", or "high" for real-time scheduling (SCHED_FIFO) so that other
-                processes cannot preempt the solver. That needs CAP_SYS_NICE or an rtprio limit
+            priority: "normal" (also when the calling thread runs at real-time priority, whose
+                policy a new thread would inherit), or "high" for real-time scheduling (SCHED_FIFO)
+                so that other processes cannot preempt the solver. That needs CAP_SYS_NICE or an rtprio limit
                 (``ulimit -r``); where the OS refuses, the thread runs at normal priority and a
                 :class:`RuntimeWarning` says why.
 
@@ -239,7 +241,9 @@ class Tracker:
         if cpus is not None and not cpus <= _usable_cpus():
             raise ValueError(f"cpu {sorted(cpus)} is not among this process's CPUs {sorted(_usable_cpus())}")
         self._core.start()
-        if cpus is None and priority == "normal":
+        # A new thread inherits its creator's policy: from a real-time caller, "normal" would not be.
+        inherited_realtime = hasattr(os, "sched_getscheduler") and os.sched_getscheduler(0) in _REALTIME_POLICIES
+        if cpus is None and priority == "normal" and not inherited_realtime:
             return "normal"
         tid = self._core.solver_thread_id
         if tid is None or not hasattr(os, "sched_setaffinity"):
@@ -248,6 +252,8 @@ class Tracker:
         if cpus is not None:
             os.sched_setaffinity(tid, cpus)
         if priority == "normal":
+            if inherited_realtime:
+                os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
             return "normal"
         try:
             os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
