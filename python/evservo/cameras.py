@@ -22,7 +22,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from evservo import io
-from evservo.inputs import require_regular_file
+from evservo.input_files import require_regular_file
 from evservo.io import EVENT_CD
 
 __all__ = [

@@ -57,7 +57,7 @@ import numpy as np
 from evservo import aedat4, bags
 from evservo._evcore import DecodeError, RawReader
 from evservo.events import EVENT_CD, from_columns, lossless_column
-from evservo.inputs import require_regular_file
+from evservo.input_files import require_regular_file
 from evservo.outputs import atomic_path
 
 __all__ = ["EVENT_CD", "DecodeError", "info", "open_events", "read_events", "write_events"]

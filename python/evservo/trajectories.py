@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from evservo.inputs import require_regular_file
+from evservo.input_files import require_regular_file
 
 KINDS = ("trans", "trans-rot", "circle", "figure8", "stop-go", "reversal", "leave-return")
 #: Kinds whose object leaves a following camera's view (the episode then scores loss and re-lock).

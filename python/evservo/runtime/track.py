@@ -26,7 +26,7 @@ import numpy as np
 
 from evservo import _evcore
 from evservo.geometry import pose_errors
-from evservo.inputs import require_regular_file
+from evservo.input_files import require_regular_file
 from evservo.interrupt import StopOnInterrupt
 from evservo.outputs import make_out_dir
 from evservo.runtime.inputs import resolve_camera
