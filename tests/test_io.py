@@ -10,7 +10,7 @@ import pytest
 
 from conftest import SAMPLES
 from evservo import io
-from evservo._evcore import DecodeError, RawReader
+from evservo._evcore import DecodeError, RawReader, RawSlices
 
 # From shared/event-samples/README.md: SHA3-224 over t as u64, x u16, y u16, on as bool.
 EXPECTED = {
@@ -99,6 +99,34 @@ def test_raw_slices_concatenate_to_the_stream(name):
     np.testing.assert_array_equal(np.concatenate(by_count), whole)
     # The default is 10 ms slices, as OpenEB's EventsIterator.
     assert len(list(io.open_events(path))) == (int(whole["t"][-1]) - t0 // 10_000 * 10_000) // 10_000 + 1
+
+
+@pytest.mark.parametrize("name", [EVT3_FILE, "prophesee_gen3_evt2_640x480_a.raw"])
+def test_raw_slices_are_those_of_the_decoded_array(name):
+    """The RAW slices come from Rust in runs (views into one array per ~1 MiB of the file); the
+    array path cuts the same stream in numpy: every slice must match, empty ones included (1 µs
+    slices of sample a: 95 872 of them, more than one run holds)."""
+    path = sample(name)
+    whole = io.read_events(path)
+    for dt in (1, 300, 10_000):
+        got, want = list(io.open_events(path, delta_t_us=dt)), list(io._array_time_slices(whole, dt))
+        assert len(got) == len(want), dt
+        for a, b in zip(got, want, strict=True):
+            assert a.dtype == io.EVENT_CD and a.flags.c_contiguous
+            np.testing.assert_array_equal(a, b)
+    by_count = list(io.open_events(path, n_events=1_000))
+    assert len(by_count) == -(-len(whole) // 1_000)
+    for i, s in enumerate(by_count):
+        np.testing.assert_array_equal(s, whole[i * 1_000 : (i + 1) * 1_000])
+
+
+def test_raw_slices_need_exactly_one_rule():
+    path = sample(EVT3_FILE)
+    for kwargs in ({}, {"delta_t_us": 10, "n_events": 10}):
+        with pytest.raises(ValueError, match="exactly one"):
+            RawSlices(path, **kwargs)
+    with pytest.raises(ValueError, match="delta_t_us must be >= 1"):
+        RawSlices(path, delta_t_us=0)
 
 
 def synthetic_events() -> np.ndarray:

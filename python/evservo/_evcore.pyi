@@ -23,6 +23,7 @@ __all__ = [
     "Evt3Encoder",
     "Mesh",
     "RawReader",
+    "RawSlices",
     "Replay",
     "SimCamera",
     "Tracker",
@@ -261,6 +262,14 @@ class RawReader:
     def read_until(self, t_us: int) -> _Events | None: ...
     def read_all(self) -> _Events: ...
     def peek_t(self) -> int | None: ...
+
+@final
+class RawSlices:
+    def __new__(
+        cls, path: str | os.PathLike[str], *, delta_t_us: int | None = None, n_events: int | None = None
+    ) -> RawSlices: ...
+    def __iter__(self) -> RawSlices: ...
+    def __next__(self) -> tuple[_Events, list[int]]: ...
 
 @final
 class Replay:

@@ -55,7 +55,7 @@ import hdf5plugin
 import numpy as np
 
 from evservo import aedat4, bags
-from evservo._evcore import DecodeError, RawReader
+from evservo._evcore import DecodeError, RawReader, RawSlices
 from evservo.events import EVENT_CD, from_columns, lossless_column
 from evservo.input_files import require_regular_file
 from evservo.outputs import atomic_path
@@ -236,22 +236,14 @@ def _load_array(p: Path, suffix: str) -> tuple[np.ndarray, int, int, bool, str]:
     return _load_h5(p)
 
 
-def _raw_blocks(p: Path, n: int) -> Iterator[np.ndarray]:
-    reader = RawReader(p)
-    while (block := reader.read_n_events(n)) is not None:
-        yield block
-
-
-def _raw_time_slices(p: Path, delta_t_us: int) -> Iterator[np.ndarray]:
-    """Time slices cut in Rust: each slice is one array handed over from the decoder, no copies here."""
-    reader = RawReader(p)
-    first = reader.peek_t()
-    if first is None:
-        return
-    end = (first // delta_t_us + 1) * delta_t_us
-    while (chunk := reader.read_until(end)) is not None:
-        yield chunk
-        end += delta_t_us
+def _raw_slices(p: Path, delta_t_us: int | None, n_events: int | None) -> Iterator[np.ndarray]:
+    """Slices cut in Rust and handed over a run at a time (one array per ~1 MiB of the file): each
+    slice is a view into its run, so crossing to Python costs one array per run, not per slice."""
+    for events, ends in RawSlices(p, delta_t_us=delta_t_us, n_events=n_events):
+        start = 0
+        for stop in ends:
+            yield events[start:stop]
+            start = stop
 
 
 def _is_our_h5(p: Path) -> bool:
@@ -343,7 +335,9 @@ def open_events(
     ``delta_t_us`` starting with the one holding the first event; each slice ends before the first
     event at or after its end, in stream order, and slices without events inside the recording
     are yielded empty. The slices concatenate to :func:`read_events`. ``topic`` picks the event
-    topic of a ROS bag.
+    topic of a ROS bag. Slices of a RAW file are views into runs of decoded events (about 1 MiB of
+    the file each), so a slice kept after the iteration moved on keeps its run's memory (copy it
+    to release that).
     """
     if delta_t_us is not None and n_events is not None:
         raise ValueError("give only one of delta_t_us and n_events")
@@ -361,9 +355,7 @@ def open_events(
             return _rechunked(blocks, n_events)
         return _block_time_slices(blocks, delta_t_us)
     if suffix == ".raw":
-        if n_events is not None:
-            return _raw_blocks(p, n_events)
-        return _raw_time_slices(p, delta_t_us)
+        return _raw_slices(p, delta_t_us, n_events)
     if suffix in _H5_SUFFIXES and _is_our_h5(p):
         if n_events is not None:
             return _h5_blocks(p, n_events)

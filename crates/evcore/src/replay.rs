@@ -8,7 +8,7 @@
 //! as `evservo.events.clamp_time` does, because ingest needs a non-decreasing stream.
 
 use crate::error::{Error, Result};
-use crate::io::RawReader;
+use crate::io::{grid_end, RawReader};
 use crate::EventCd;
 use std::io::Read;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -71,7 +71,7 @@ impl<R: Read> TimeSlices<R> {
             Some(e) => e,
             None => match self.reader.peek_t()? {
                 None => return Ok(None),
-                Some(first) => (first.div_euclid(self.batch_us) + 1) * self.batch_us,
+                Some(first) => grid_end(first, self.batch_us),
             },
         };
         if end - self.batch_us > self.until_us || !self.reader.read_until_t(end, out)? {

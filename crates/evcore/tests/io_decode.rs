@@ -10,8 +10,11 @@
 //! `EVSERVO_FUZZ_CASES=1000000 cargo test --release -p evcore --test io_decode fuzz_`.
 //! `PROPTEST_CASES` sets the count of the slower whole-recording property (default 256).
 
-use evcore::io::{Decoder, Evt2Decoder, Evt3Decoder, Format, RawReader};
-use evcore::{Error, EventBatch};
+use evcore::io::{
+    Decoder, Evt2Decoder, Evt3Decoder, Format, RawReader, SliceRule, BLOCK_BYTES,
+    MAX_SLICES_PER_RUN,
+};
+use evcore::{Error, EventBatch, EventCd};
 use proptest::prelude::*;
 use std::path::PathBuf;
 use std::sync::OnceLock;
@@ -215,6 +218,73 @@ fn owned_slices_equal_appended_slices() {
             joined.extend(block);
         }
         assert_eq!(joined, all);
+    }
+}
+
+/// The slices of `evservo.io.open_events` by their definition, one event at a time: a grid of
+/// `delta_t_us` from the one holding the first event; an event at or after the current end closes
+/// the slice (and every empty one it jumps over).
+fn time_slices_by_definition(events: &[EventCd], delta_t_us: i64) -> Vec<Vec<EventCd>> {
+    let Some(first) = events.first() else {
+        return Vec::new();
+    };
+    let mut end = (first.t.div_euclid(delta_t_us) + 1) * delta_t_us;
+    let (mut slices, mut open) = (Vec::new(), Vec::new());
+    for e in events {
+        while e.t >= end {
+            slices.push(std::mem::take(&mut open));
+            end += delta_t_us;
+        }
+        open.push(*e);
+    }
+    slices.push(open);
+    slices
+}
+
+/// Every run of `next_slices` split at its ends, checking each run's shape on the way.
+fn slices_in_runs(mut reader: RawReader, mut rule: SliceRule) -> Vec<Vec<EventCd>> {
+    let mut slices = Vec::new();
+    while let Some(run) = reader.next_slices(&mut rule).unwrap() {
+        assert!(!run.ends.is_empty() && run.ends.len() <= MAX_SLICES_PER_RUN);
+        assert_eq!(run.ends.last(), Some(&run.events.len()));
+        let mut start = 0;
+        for &stop in &run.ends {
+            slices.push(run.events[start..stop].to_vec());
+            start = stop;
+        }
+    }
+    slices
+}
+
+#[test]
+fn slice_runs_are_the_defined_slices_for_any_block_size() {
+    for name in [EVT3, EVT2_A] {
+        let path = samples_dir().join(name);
+        let Ok(mut whole) = RawReader::open(&path) else {
+            return;
+        };
+        let all = whole.read_rest().unwrap();
+        // 4 KiB and an odd size (blocks ending inside words) carry partial slices from run to
+        // run; 1 µs slices of sample a are more than one run may hold.
+        for block in [4096, 65_537, BLOCK_BYTES] {
+            let reader = || {
+                let mut r = RawReader::open(&path).unwrap();
+                r.set_block_bytes(block);
+                r
+            };
+            for dt in [1, 300, 4_000, 50_000] {
+                let got = slices_in_runs(reader(), SliceRule::time(dt).unwrap());
+                assert!(
+                    got == time_slices_by_definition(&all, dt),
+                    "{name}: {dt} µs slices, {block}-byte blocks"
+                );
+            }
+            for n in [1, 70_001] {
+                let got = slices_in_runs(reader(), SliceRule::count(n).unwrap());
+                let want: Vec<Vec<EventCd>> = all.chunks(n).map(<[EventCd]>::to_vec).collect();
+                assert!(got == want, "{name}: {n}-event slices, {block}-byte blocks");
+            }
+        }
     }
 }
 
@@ -588,6 +658,19 @@ proptest! {
             while let Ok(true) = r.read_n_events(n, &mut out) {}
             prop_assert!(out.x.iter().all(|&x| u32::from(x) < r.width()));
             prop_assert!(out.y.iter().all(|&y| u32::from(y) < r.height()));
+        }
+        // The same file in runs of slices (small blocks, so that several runs are read): it ends,
+        // and where it reads without error the runs hold what one read of the rest gives.
+        if let (Ok(mut runs), Ok(mut whole)) = (RawReader::new(&file[..]), RawReader::new(&file[..])) {
+            runs.set_block_bytes(n);
+            let mut rule = SliceRule::count(n).unwrap();
+            let mut got = Vec::new();
+            while let Ok(Some(run)) = runs.next_slices(&mut rule) {
+                got.extend(run.events);
+            }
+            if let Ok(all) = whole.read_rest() {
+                prop_assert_eq!(got, all);
+            }
         }
     }
 }

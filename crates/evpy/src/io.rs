@@ -1,8 +1,9 @@
-//! `evservo._evcore.RawReader`: Prophesee RAW (EVT 2.0/3.0) files, decoded with the GIL released.
+//! `evservo._evcore.RawReader` and `RawSlices`: Prophesee RAW (EVT 2.0/3.0) files, decoded with the
+//! GIL released.
 
 use crate::errors::to_py;
 use crate::events::{to_array, PyEventCd};
-use evcore::io::RawReader;
+use evcore::io::{RawReader, SliceRule};
 use numpy::PyArray1;
 use pyo3::prelude::*;
 use std::fs::File;
@@ -88,6 +89,52 @@ impl PyRawReader {
     }
 }
 
+/// A RAW file cut into the slices of `evservo.io.open_events`, handed over a run at a time.
+#[pyclass(name = "RawSlices", module = "evservo._evcore")]
+pub struct PyRawSlices {
+    reader: RawReader<File>,
+    rule: SliceRule,
+}
+
+#[pymethods]
+impl PyRawSlices {
+    /// RawSlices(path, *, delta_t_us=None, n_events=None): time slices of `delta_t_us` µs or
+    /// slices of `n_events` events (exactly one of them). Iterating gives `(events, ends)` runs:
+    /// one EVENT_CD array holding whole slices back to back, and the end index of each in it.
+    #[new]
+    #[pyo3(signature = (path, *, delta_t_us=None, n_events=None))]
+    fn new(
+        py: Python<'_>,
+        path: std::path::PathBuf,
+        delta_t_us: Option<i64>,
+        n_events: Option<usize>,
+    ) -> PyResult<Self> {
+        let rule = match (delta_t_us, n_events) {
+            (Some(dt), None) => SliceRule::time(dt),
+            (None, Some(n)) => SliceRule::count(n),
+            _ => {
+                return Err(pyo3::exceptions::PyValueError::new_err(
+                    "give exactly one of delta_t_us and n_events",
+                ))
+            }
+        }
+        .map_err(to_py)?;
+        let reader = PyRawReader::new(py, path)?.inner;
+        Ok(Self { reader, rule })
+    }
+
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<(Events<'py>, Vec<usize>)>> {
+        let (reader, rule) = (&mut self.reader, &mut self.rule);
+        let run = py.detach(|| reader.next_slices(rule)).map_err(to_py)?;
+        Ok(run.map(|run| (to_array(py, run.events), run.ends)))
+    }
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<PyRawReader>()
+    m.add_class::<PyRawReader>()?;
+    m.add_class::<PyRawSlices>()
 }

@@ -21,13 +21,15 @@ mod evt3;
 mod evt3_encode;
 mod header;
 mod raw;
+mod slices;
 mod target;
 
 pub use evt2::{Evt2Decoder, Evt2Words};
 pub use evt3::{Evt3Decoder, Evt3Words};
 pub use evt3_encode::{encode_evt3, Evt3Encoder, MAX_WRAPS_PER_GAP};
 pub use header::{Format, RawHeader};
-pub use raw::RawReader;
+pub use raw::{RawReader, BLOCK_BYTES};
+pub use slices::{grid_end, SliceRule, SliceRun, MAX_SLICES_PER_RUN};
 pub use target::{ColumnSlots, DecodeTarget, RecordSlots, Slots};
 
 use crate::error::{Error, Result};
