@@ -55,6 +55,7 @@ import numpy as np
 import evservo
 from evservo import geometry, trajectories
 from evservo.events import EVENT_CD
+from evservo.scheduling import calling_thread_scheduling_kept
 from evservo.synth import edge_events
 from evservo.tracking import FIFO_PRIORITY, Tracker, model_point_set
 
@@ -201,16 +202,10 @@ def _producer_priority(priority: str):
     if priority != "high" or not hasattr(os, "sched_setscheduler"):
         yield
         return
-    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY - 1))
-    except PermissionError:
+    with calling_thread_scheduling_kept():
+        with contextlib.suppress(PermissionError):
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY - 1))
         yield
-        return
-    try:
-        yield
-    finally:
-        os.sched_setscheduler(0, policy, param)
 
 
 def measure_latency(

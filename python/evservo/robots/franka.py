@@ -15,11 +15,9 @@ A lost link (``NetworkException``/``ProtocolException``) makes the call attempt 
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
-import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any, Literal
 
 import numpy as np
@@ -27,6 +25,7 @@ import numpy as np
 from evservo.limits import CartesianLimits
 from evservo.robots.gated import GatedArm
 from evservo.robots.safety import Workspace
+from evservo.scheduling import calling_thread_scheduling_kept
 
 __all__ = ["FrankaArm"]
 
@@ -39,26 +38,6 @@ def _franky() -> Any:
     except ImportError as err:
         raise ImportError("FrankaArm needs the 'franky-control' package (pip install franky-control==2.0.0)") from err
     return franky
-
-
-@contextlib.contextmanager
-def _calling_thread_scheduling_kept() -> Iterator[None]:
-    """Restore the calling thread's scheduling policy and priority after the block.
-
-    libfranka raises the thread that connects to SCHED_FIFO 99 wherever the OS permits (root, or an
-    rtprio limit), also with ``RealtimeConfig.Ignore``, and leaves it there. That thread is the
-    caller's, usually Python's main thread, and every thread started from it afterwards inherits the
-    policy: a tracker's solver thread would then spin at the highest real-time priority and starve
-    the process's other threads. franky's own control thread sets its priority itself."""
-    if not hasattr(os, "sched_getscheduler"):
-        yield
-        return
-    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-    try:
-        yield
-    finally:
-        if (os.sched_getscheduler(0), os.sched_getparam(0)) != (policy, param):
-            os.sched_setscheduler(0, policy, param)
 
 
 class FrankaArm(GatedArm):
@@ -95,7 +74,11 @@ class FrankaArm(GatedArm):
         self._hold_ms = max(1, math.ceil(watchdog_s * 1000.0))
         config = self._fr.RealtimeConfig.Enforce if realtime == "enforce" else self._fr.RealtimeConfig.Ignore
         try:
-            with _calling_thread_scheduling_kept():
+            # libfranka raises the connecting thread (usually Python's main thread) to SCHED_FIFO 99
+            # wherever the OS permits, also with RealtimeConfig.Ignore, and leaves it there; every
+            # thread started from it later, e.g. a tracker's solver, would spin at that priority.
+            # franky's control thread sets its own priority.
+            with calling_thread_scheduling_kept():
                 self.robot = (robot_factory or self._fr.Robot)(
                     host, relative_dynamics_factor=relative_dynamics_factor, realtime_config=config
                 )
