@@ -69,7 +69,11 @@ def ns():
 
 class _Procs:
     """Processes started in their own process groups, their output in files (a pipe nobody reads
-    could block them), killed with their children on exit."""
+    could block them), killed with their children on exit.
+
+    The tests start one ROS process only once the one before has its node: with Fast DDS over UDP
+    alone, two participants created at the same instant on one host were seen (4 of 6 runs) to leave
+    one of them deaf to a third participant started before both, for good."""
 
     def __init__(self, env: dict, logs: Path) -> None:
         self.env, self.logs, self.procs = env, logs, []
@@ -171,6 +175,7 @@ def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros
                   "--pose-topic", f"{ns}/pose", "--status-topic", f"{ns}/status"]  # fmt: skip
         track = procs.evservo("ros", "track", "--model", rec.object, "--init-pose", init, "--idle-exit", "2",
                               *topics, *viewer)  # fmt: skip
+        procs.wait_line(track, "listening on")  # one participant after another (see _Procs)
         play = procs.evservo("ros", "play", str(small_rec), "--topic", f"{ns}/events", "--wait", "60")
         _, err_p = procs.wait(play)
         out_t, err_t = procs.wait(track)
@@ -211,6 +216,7 @@ def test_track_node_without_intrinsics_waits_for_them_and_ends_with_a_clear_erro
     with _Procs(ros_env, tmp_path / "logs") as procs:
         track = procs.evservo("ros", "track", "--model", rec.object, "--init-pose", _pose_text(rec.gt_T[0]),
                               "--idle-exit", "0.5", *topics)  # fmt: skip
+        procs.wait_line(track, "listening on")
         play = procs.evservo("ros", "play", str(small_rec), "--topic", f"{ns}/events", "--wait", "60")
         procs.wait(play)
         procs.wait_line(track, "wait for a sensor_msgs/CameraInfo")
@@ -258,7 +264,7 @@ def _servo(
         "--max-jump-rad", "4",
         "--out", str(tmp_path / "out"), *extra,
     )  # fmt: skip
-    procs.wait_line(servo, "waiting up to")  # subscribed: the player waits for it
+    procs.wait_line(servo, "for the first events")  # subscribed and matched the arm: the player waits for it
     procs.evservo("ros", "play", str(rec_path), "--topic", f"{ns}/events", "--wait", "60")
     return servo, peer
 
@@ -324,6 +330,23 @@ def test_servo_node_publishes_a_twist_per_cycle_and_a_zero_twist_when_the_events
     # machine are counted as missed, never made up), and each twist went out in its cycle.
     assert (n + summary["missed_cycles"]) / log["t_s"][-1] == pytest.approx(100, rel=0.1)
     assert np.median(np.abs(np.diff(stamps[cyc]) - np.diff(log["t_s"]))) < 0.001
+
+
+def test_servo_node_without_a_twist_subscriber_says_so_and_sends_nothing(servo_rec, tmp_path, ros_env, ns):
+    """Nobody subscribes to the twist topic (no controller running): the node does not start the loop
+    (twists before discovery would be lost), exits 2 naming the topic, and writes no run."""
+    _need_ros()
+    rec = load_recording(servo_rec)
+    with _Procs(ros_env, tmp_path / "logs") as procs:
+        servo = procs.evservo(
+            "ros", "servo", "--config", str(_rig(tmp_path, rec.camera)), "--model", rec.object,
+            "--init-pose", _pose_text(rec.gt_T[0]), "--twist-topic", f"{ns}/twist", "--events-topic", f"{ns}/events",
+            "--start-timeout", "1", "--out", str(tmp_path / "out"),
+        )  # fmt: skip
+        out, err = procs.wait(servo, timeout_s=60)
+    assert servo.returncode == 2, out + err
+    assert f"no subscriber on {ns}/twist within 1 s" in err and "Traceback" not in err, err
+    assert not (tmp_path / "out" / "summary.json").exists()
 
 
 def test_servo_node_stops_the_arm_on_ctrl_c(servo_rec, tmp_path, ros_env, ns):

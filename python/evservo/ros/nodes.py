@@ -154,6 +154,8 @@ def track(
         node.create_subscription(EventPacket, events_topic, on_packet, _qos())
         if camera is None:
             node.create_subscription(CameraInfo, camera_info_topic, on_info, 10)
+        intrinsics = f" and {camera_info_topic}" if camera is None else ""
+        print(f"ros track: listening on {events_topic}{intrinsics}", flush=True)
         published = [0]
         failure: list[BaseException] = []
 

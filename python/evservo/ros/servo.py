@@ -9,7 +9,8 @@
   ``header.frame_id = ee_frame``, one message per control cycle, a zero twist on every halt (the
   loop's watchdog and end, the gate's watchdog, Ctrl-C) — the input of MoveIt Servo
   (``/servo_node/delta_twist_cmds``) or of a Cartesian velocity controller. Reliable and volatile,
-  as those subscribe.
+  as those subscribe; the loop starts only once a subscriber has matched (twists sent before would
+  be lost).
 * Arm pose: the newest ``geometry_msgs/PoseStamped`` on ``ee_pose_topic`` (the end effector in the
   robot base frame; older than ``ee_pose_timeout_s`` counts as a lost link, which stops the run),
   or, without one, the sent twists integrated (see :mod:`evservo.robots.twist_sink`).
@@ -190,6 +191,19 @@ def twist_publisher(node: Any, topic: str, frame_id: str) -> tuple[Callable[[np.
     return send, pub
 
 
+def wait_for_subscriber(pub: Any, topic: str, timeout_s: float) -> None:
+    """Wait until ``pub`` has matched a subscriber (the arm's servo controller); ``ConnectionError``
+    if none within ``timeout_s``. Twists sent before discovery matched the two would never reach the
+    arm (volatile topic), and servoing with nobody listening moves nothing."""
+    deadline = time.monotonic() + timeout_s
+    while pub.get_subscription_count() == 0:
+        if time.monotonic() >= deadline:
+            raise ConnectionError(
+                f"no subscriber on {topic} within {timeout_s:g} s: is the servo controller running (or give --dry-run)?"
+            )
+        time.sleep(0.01)
+
+
 def run_servo(
     model: str, init_pose: np.ndarray, rig: RigConfig, cfg: RealLoopConfig, *, camera: _evcore.Camera | None = None,
     desired: np.ndarray | None = None, solver: str = "edft+", events_topic: str = "/event_camera/events",
@@ -222,6 +236,9 @@ def run_servo(
             )
             workspace = None
         send, pub = twist_publisher(ros.node, twist_topic, ee_frame)
+        if not cfg.dry_run:
+            say(f"waiting up to {cfg.start_timeout_s:g} s for a subscriber on {twist_topic}")
+            wait_for_subscriber(pub, twist_topic, cfg.start_timeout_s)
         tracker = Tracker(camera, model, init_pose, solver=solver)
         arm = TwistSink(
             send, pose=pose, link=f"the twist subscribers of {twist_topic}", T_e_c=rig.T_e_c, limits=rig.limits,
