@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 import evservo
-from evservo.sim.episode import PREDICTORS, EpisodeConfig
+from evservo.sim.episode_config import PREDICTORS, EpisodeConfig
 
 # (pos mm, rot °) of the paper's Table I/II: EDFT⁺ mean ± std over three runs, EDOPTS one run.
 PAPER = {

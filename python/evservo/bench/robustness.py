@@ -36,7 +36,7 @@ import numpy as np
 
 import evservo
 from evservo.bench.paper import _run_one, code_version, reuse
-from evservo.sim.episode import EpisodeConfig
+from evservo.sim.episode_config import EpisodeConfig
 
 SOLVERS = ("edft+", "edopts", "edft")
 EVENTS = ("edges", "render")

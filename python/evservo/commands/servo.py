@@ -50,12 +50,12 @@ def parse_spells(texts: list[str], option: str = "--occlude") -> tuple[tuple[flo
 
 def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> None:
     """Options shared by ``servo`` and ``demo``. ``defaults``: the command's own defaults, as
-    :class:`~evservo.sim.episode.EpisodeConfig` fields (the config's own defaults hold otherwise).
+    :class:`~evservo.sim.episode_config.EpisodeConfig` fields (the config's own defaults hold otherwise).
     Sim-only options parse to None when not given, so ``--robot`` can tell they were."""
     from dataclasses import fields
 
     from evservo.commands.track import add_viewer_arguments
-    from evservo.sim.episode import COST_MODELS, PREDICTORS, EpisodeConfig
+    from evservo.sim.episode_config import COST_MODELS, PREDICTORS, EpisodeConfig
     from evservo.tracking import SOLVERS
 
     base = {f.name: f.default for f in fields(EpisodeConfig)}
@@ -131,8 +131,8 @@ def sim_options_given(args: argparse.Namespace) -> list[str]:
 
 
 def config_from_args(args: argparse.Namespace):
-    """The :class:`~evservo.sim.episode.EpisodeConfig` of parsed options."""
-    from evservo.sim.episode import EpisodeConfig
+    """The :class:`~evservo.sim.episode_config.EpisodeConfig` of parsed options."""
+    from evservo.sim.episode_config import EpisodeConfig
     from evservo.trajectories import LEAVING_KINDS
 
     values = dict(args.episode_defaults)
