@@ -89,6 +89,13 @@ pub struct TrackerConfig {
     /// Continuous symmetries of the object as (unit axis, a point on it), object frame (metres):
     /// rotation about them is unobservable, so every update keeps the prior's spin about them.
     pub held_axes_o: Vec<(Vector3<f64>, Vector3<f64>)>,
+    /// A search step moves to its best candidate only when that candidate beats the null one by at
+    /// least this many standard errors of the per-point gains (see
+    /// [`crate::solve::search::search_step`]); 0 = the paper's plain argmin. With it on, the steps
+    /// after an event dropout also hold the pose until the fresh field has as many fired pixels as
+    /// S* has points. None: the solver's default ([`SolverMode::default_search_min_t`]: 3 for
+    /// EDFT⁺, 0 for EDOPTS).
+    pub search_min_t: Option<f32>,
 }
 
 impl Default for TrackerConfig {
@@ -111,7 +118,17 @@ impl Default for TrackerConfig {
             held_axes_o: Vec::new(),
             ingest_limit: IngestLimit::default(),
             anti_flicker_hz: Vec::new(),
+            search_min_t: None,
         }
+    }
+}
+
+impl TrackerConfig {
+    /// The significance threshold of the search steps in effect: `search_min_t`, or the solver's
+    /// default.
+    pub fn effective_search_min_t(&self) -> f32 {
+        self.search_min_t
+            .unwrap_or_else(|| self.solver.default_search_min_t())
     }
 }
 
@@ -802,6 +819,10 @@ impl Solver {
         recency: Arc<Recency>,
         out: Arc<TrackerOutput>,
     ) -> Result<Self> {
+        let min_t = config.effective_search_min_t();
+        ensure(min_t.is_finite() && min_t >= 0.0, || {
+            format!("search_min_t {min_t} must be finite and non-negative")
+        })?;
         let rect = sensor.rectified();
         let field = DistanceField::new(config.field)?;
         let pins = (0..config.field.levels)
@@ -969,13 +990,21 @@ impl Solver {
         };
         self.mask.resize(roi.area(), 0);
         self.reader.fill_mask(roi, &mut self.mask);
+        let min_t = self.config.effective_search_min_t();
         let resumed = self.out.resumed_at_us.load(Ordering::Acquire);
+        let mut refilling = false;
         if resumed != i64::MIN && (0..AFTER_GAP_US).contains(&(t_us - resumed)) {
             self.recency.keep_fresh(&mut self.mask, roi, resumed);
+            // With the significance test on, the search steps that would pull the pose back onto
+            // a sparse post-gap field are mostly held back while LM follows its few fresh pixels;
+            // so nothing moves until the field has as many fired pixels as S* has points.
+            refilling =
+                min_t > 0.0 && self.mask.iter().filter(|&&m| m != 0).count() < self.points.len();
         }
         let built = self.field.build(&self.mask, roi, n_levels);
         let new_pose = match (&built, kind) {
             (Err(_), _) => pose,
+            (Ok(()), _) if refilling => pose,
             (Ok(()), StepKind::Lm) => {
                 let levels: Vec<_> = (0..n_levels)
                     .rev()
@@ -994,6 +1023,7 @@ impl Solver {
                     &visible,
                     &self.pivot_o,
                     &deltas,
+                    min_t,
                 );
                 match &self.last_lm {
                     Some(lm) if lm.n_held > 0 && out.candidate > 0 => {
