@@ -2012,6 +2012,50 @@ mod tests {
     }
 
     #[test]
+    fn after_a_gap_a_sparse_fresh_field_moves_nothing_under_the_significance_test() {
+        // As above, but the events resume sparsely: an eighth of the outline fires, far fewer
+        // pixels than S* has points. EDFT⁺ (search_min_t 3) holds the pose until the field has
+        // filled; the paper's plain argmin (search_min_t 0) already moves on it.
+        let moved = Pose::from_parts(
+            Translation3::new(0.012, 0.0, 0.6),
+            UnitQuaternion::identity(),
+        );
+        for min_t in [None, Some(0.0)] {
+            let (cam, pts, pose) = square();
+            let config = TrackerConfig {
+                ingest_limit: IngestLimit::Off,
+                search_min_t: min_t,
+                ..TrackerConfig::default()
+            };
+            let mut core = TrackerCore::new(&cam, pts.clone(), pose, config).unwrap();
+            for k in 0..10 {
+                let ev = outline_events(&cam, &pts, &pose, k * 1000, 400);
+                core.update(ev.as_slice()).unwrap();
+            }
+            let locked = core.latest();
+            assert!(!locked.lost);
+            let sparse: Vec<[f32; 3]> = pts.iter().step_by(8).copied().collect();
+            let mut est = locked;
+            for k in 70..75 {
+                let ev = outline_events(&cam, &sparse, &moved, k * 1000, 50);
+                est = core.update(ev.as_slice()).unwrap();
+            }
+            if min_t.is_none() {
+                assert_eq!(est.pose, locked.pose, "held while the field refills");
+                // Once the whole outline fires, the pose follows it.
+                for k in 75..80 {
+                    let ev = outline_events(&cam, &pts, &moved, k * 1000, 400);
+                    est = core.update(ev.as_slice()).unwrap();
+                }
+                let dx = (est.pose.translation.x - 0.012).abs();
+                assert!(dx < 5e-4 && !est.lost, "{dx} m sideways: {est:?}");
+            } else {
+                assert_ne!(est.pose, locked.pose, "the plain argmin moves on the sparse field");
+            }
+        }
+    }
+
+    #[test]
     fn absurd_time_is_refused_and_the_time_line_can_restart() {
         let (mut core, pts, pose) = core(IngestLimit::Off);
         let cam = *core.camera();
