@@ -89,12 +89,13 @@ pub struct TrackerConfig {
     /// Continuous symmetries of the object as (unit axis, a point on it), object frame (metres):
     /// rotation about them is unobservable, so every update keeps the prior's spin about them.
     pub held_axes_o: Vec<(Vector3<f64>, Vector3<f64>)>,
-    /// A search step moves to its best candidate only when that candidate beats the null one by at
-    /// least this many standard errors of the per-point gains (see
-    /// [`crate::solve::search::search_step`]); 0 = the paper's plain argmin. With it on, the steps
-    /// after an event dropout also hold the pose until the fresh field has as many fired pixels as
-    /// S* has points. None: the solver's default ([`SolverMode::default_search_min_t`]: 3 for
-    /// EDFT⁺, 0 for EDOPTS).
+    /// While S* is not wholly in view (the outline is cut by the image border; see
+    /// `FULL_VIEW_FRACTION`), a search step moves to its best candidate only when that candidate
+    /// beats the null one by at least this many standard errors of the per-point gains (see
+    /// [`crate::solve::search::search_step`]); 0 = the paper's plain argmin everywhere. With it on,
+    /// the steps after an event dropout also hold the pose until the fresh field has as many fired
+    /// pixels as S* has points. None: the solver's default ([`SolverMode::default_search_min_t`]:
+    /// 3 for EDFT⁺, 0 for EDOPTS and EDFT).
     pub search_min_t: Option<f32>,
 }
 
@@ -1023,7 +1024,11 @@ impl Solver {
                     &visible,
                     &self.pivot_o,
                     &deltas,
-                    min_t,
+                    // Only while the outline is cut by the border: with the whole outline in view
+                    // LM undoes a noise-level search move, and under occlusion the test held back
+                    // the search steps that kept the pose on the object (objects suite, mug at
+                    // 0.6 m 30 % occluded: 3.2 mm plain, 23 mm with the test everywhere).
+                    if whole { 0.0 } else { min_t },
                 );
                 match &self.last_lm {
                     Some(lm) if lm.n_held > 0 && out.candidate > 0 => {
@@ -2050,7 +2055,10 @@ mod tests {
                 let dx = (est.pose.translation.x - 0.012).abs();
                 assert!(dx < 5e-4 && !est.lost, "{dx} m sideways: {est:?}");
             } else {
-                assert_ne!(est.pose, locked.pose, "the plain argmin moves on the sparse field");
+                assert_ne!(
+                    est.pose, locked.pose,
+                    "the plain argmin moves on the sparse field"
+                );
             }
         }
     }

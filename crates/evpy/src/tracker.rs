@@ -174,8 +174,9 @@ impl PyTracker {
     /// held_axes=None, mesh=None, view_spacing_deg=15.0, depth_range_m=(0.3, 1.5), n_points=1000,
     /// seed=0, lost_below=0.3, relock_above=0.45, search_min_t=None): held_axes (K, 6) are continuous symmetry axes of the object (unit axis, then a
     /// point on it; object frame, metres) whose rotation every update keeps at the prior.
-    /// A search step moves only when its best candidate beats staying put by `search_min_t`
-    /// standard errors of the per-point gains (None: 3 for edft+, 0 = the plain argmin otherwise).
+    /// While the object is partly out of view, a search step moves only when its best candidate
+    /// beats staying put by `search_min_t` standard errors of the per-point gains (None: 3 for
+    /// edft+, 0 = the plain argmin otherwise).
     ///
     /// With `mesh`, a bank of viewpoint templates (S* of `n_points` every `view_spacing_deg` over
     /// the viewing sphere, searched over `depth_range_m`) lets the tracker find the object again by

@@ -3,9 +3,9 @@
 
 use crate::error::{Error, Result};
 
-/// EDFT⁺'s search steps move only when their best candidate beats the null one by this many
-/// standard errors of the per-point gains (issue 13: noise-level wins ratcheted small, far objects
-/// at the image border to 60 mm / 13°).
+/// EDFT⁺'s search steps on an outline cut by the image border move only when their best candidate
+/// beats the null one by this many standard errors of the per-point gains (issue 13: noise-level
+/// wins ratcheted small, far objects at the image border to 60 mm / 13°).
 pub const EDFT_PLUS_SEARCH_MIN_T: f32 = 3.0;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -2,9 +2,10 @@
 //! k that moves the projected model by one pixel (from the image Jacobian), each scored by Eq. (1)
 //! on the same field as LM; the lowest cost wins.
 //!
-//! Optionally (EDFT⁺'s default, see [`search_step`]'s `min_t`) the winner must also win
-//! significantly: its per-point gains over the null candidate must have a mean of at least `min_t`
-//! standard errors, else the step stays put. On a small, far object one candidate is a turn of more
+//! Optionally (EDFT⁺'s default while the object is partly out of view, see [`search_step`]'s
+//! `min_t` and `TrackerConfig::search_min_t`) the winner must also win significantly: its
+//! per-point gains over the null candidate must have a mean of at least `min_t` standard errors,
+//! else the step stays put. On a small, far object one candidate is a turn of more
 //! than a degree, and on a sparse field (still filling, or cut by the image border) a candidate
 //! that beats the null by a fraction of a percent of the cost is noise; taken, such steps ratchet
 //! the pose along directions the LM steps see too weakly to undo (issue 13, box at 1.2 m partly out
