@@ -154,3 +154,29 @@ def test_occluded_far_box_is_not_pulled_off_by_the_coarse_levels(box_occluded_ro
     row = box_occluded_rows["edft+"]
     assert row["pos_rms_mm"] <= 12.0, box_occluded_rows  # 1 % of the distance
     assert row["rot_rms_deg"] <= box_occluded_rows["edopts"]["rot_rms_deg"] + 0.5, box_occluded_rows
+
+
+@pytest.fixture(scope="module")
+def box_far_edge_rows():
+    """The printed box at Z = 1.2 m (about 100 px across) partly out of view, 0.5 s."""
+    case = objects.Case("box", 1.2, "edge")
+    events, gt_t, gt_T = objects.render_case(case, CAM)
+    return {s: objects.track_case(case, CAM, events, gt_t, gt_T, s) for s in ("edft+", "edopts")}
+
+
+def test_far_box_at_the_border_does_not_ratchet_on_noise_level_search_wins(box_far_edge_rows):
+    # One search candidate is a 1.5° out-of-plane turn here. Taking every candidate that beat the null
+    # by 0.4–1.7 % of the cost while the field filled ratcheted EDFT⁺ to 60 mm / 13°, along directions
+    # the LM steps saw too weakly (outline cut by the border) to undo; a step now moves only on a win of
+    # 3 standard errors of the per-point gains (search_min_t).
+    row = box_far_edge_rows["edft+"]
+    assert row["pos_rms_mm"] <= 12.0, box_far_edge_rows  # 1 % of the distance
+    assert row["rot_rms_deg"] <= 2.0, box_far_edge_rows
+    assert row["rot_rms_deg"] <= box_far_edge_rows["edopts"]["rot_rms_deg"] + 0.5, box_far_edge_rows
+
+
+def test_search_min_t_is_checked():
+    T = objects.start_pose(objects.Case("box", 0.6, "full"), CAM, 0.15)
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="search_min_t"):
+            Tracker(CAM, "box", T, search_min_t=bad)

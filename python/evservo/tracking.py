@@ -125,6 +125,11 @@ class Tracker:
         lost_below, relock_above: the estimate turns ``lost`` when its confidence falls below
             ``lost_below`` and is trusted again from ``relock_above`` on (default: the core's,
             calibrated in benches/RESULTS.md "Confidence and loss").
+        search_min_t: while the object is partly out of view, a search step moves to its best candidate only
+            when that candidate beats staying put by this many standard errors of the per-point gains
+            (noise-level wins ratchet small, far objects at the border; benches/RESULTS.md, issue 13 round
+            7); with it on, the pose is also held after an event dropout until the fresh field has as many
+            fired pixels as S* has points. Default None: 3 for "edft+", 0 (the paper's plain argmin) else.
 
     Every estimate carries ``confidence`` (0–1: how much better than chance the events support the
     pose) and ``lost`` (the pose is not to be trusted: not yet confirmed by an update, confidence
@@ -154,6 +159,7 @@ class Tracker:
         depth_range_m: tuple[float, float] = (0.3, 1.5),
         lost_below: float | None = None,
         relock_above: float | None = None,
+        search_min_t: float | None = None,
     ) -> None:
         T = None if T_c_o is None else as_pose(T_c_o, "T_c_o")
         if reacquire is None:
@@ -187,7 +193,7 @@ class Tracker:
             levels=levels, ingest_core_share=ingest_core_share, max_ingest_rate=max_ingest_rate,
             anti_flicker_hz=_frequencies(anti_flicker_hz), held_axes=np.array(held, float).reshape(-1, 6),
             mesh=core_mesh if reacquire else None, view_spacing_deg=view_spacing_deg,
-            depth_range_m=depth_range_m, n_points=n_points, seed=seed,
+            depth_range_m=depth_range_m, n_points=n_points, seed=seed, search_min_t=search_min_t,
             **{k: v for k, v in (("lost_below", lost_below), ("relock_above", relock_above)) if v is not None},
         )  # fmt: skip
 

@@ -154,6 +154,21 @@ fn bench(c: &mut Criterion<BenchClock>) {
                 &points,
                 &pivot,
                 &deltas,
+                0.0,
+            )
+        })
+    });
+    // EDFT⁺'s default: the same step with the significance test of its best candidate.
+    c.bench_function("search_step_min_t3", |b| {
+        b.iter(|| {
+            search_step(
+                field.level(0),
+                &pins[0],
+                black_box(&off),
+                &points,
+                &pivot,
+                &deltas,
+                3.0,
             )
         })
     });

@@ -89,6 +89,14 @@ pub struct TrackerConfig {
     /// Continuous symmetries of the object as (unit axis, a point on it), object frame (metres):
     /// rotation about them is unobservable, so every update keeps the prior's spin about them.
     pub held_axes_o: Vec<(Vector3<f64>, Vector3<f64>)>,
+    /// While S* is not wholly in view (the outline is cut by the image border; see
+    /// `FULL_VIEW_FRACTION`), a search step moves to its best candidate only when that candidate
+    /// beats the null one by at least this many standard errors of the per-point gains (see
+    /// [`crate::solve::search::search_step`]); 0 = the paper's plain argmin everywhere. With it on,
+    /// the steps after an event dropout also hold the pose until the fresh field has as many fired
+    /// pixels as S* has points. None: the solver's default ([`SolverMode::default_search_min_t`]:
+    /// 3 for EDFT⁺, 0 for EDOPTS and EDFT).
+    pub search_min_t: Option<f32>,
 }
 
 impl Default for TrackerConfig {
@@ -111,7 +119,17 @@ impl Default for TrackerConfig {
             held_axes_o: Vec::new(),
             ingest_limit: IngestLimit::default(),
             anti_flicker_hz: Vec::new(),
+            search_min_t: None,
         }
+    }
+}
+
+impl TrackerConfig {
+    /// The significance threshold of the search steps in effect: `search_min_t`, or the solver's
+    /// default.
+    pub fn effective_search_min_t(&self) -> f32 {
+        self.search_min_t
+            .unwrap_or_else(|| self.solver.default_search_min_t())
     }
 }
 
@@ -802,6 +820,10 @@ impl Solver {
         recency: Arc<Recency>,
         out: Arc<TrackerOutput>,
     ) -> Result<Self> {
+        let min_t = config.effective_search_min_t();
+        ensure(min_t.is_finite() && min_t >= 0.0, || {
+            format!("search_min_t {min_t} must be finite and non-negative")
+        })?;
         let rect = sensor.rectified();
         let field = DistanceField::new(config.field)?;
         let pins = (0..config.field.levels)
@@ -969,13 +991,21 @@ impl Solver {
         };
         self.mask.resize(roi.area(), 0);
         self.reader.fill_mask(roi, &mut self.mask);
+        let min_t = self.config.effective_search_min_t();
         let resumed = self.out.resumed_at_us.load(Ordering::Acquire);
+        let mut refilling = false;
         if resumed != i64::MIN && (0..AFTER_GAP_US).contains(&(t_us - resumed)) {
             self.recency.keep_fresh(&mut self.mask, roi, resumed);
+            // With the significance test on, the search steps that would pull the pose back onto
+            // a sparse post-gap field are mostly held back while LM follows its few fresh pixels;
+            // so nothing moves until the field has as many fired pixels as S* has points.
+            refilling =
+                min_t > 0.0 && self.mask.iter().filter(|&&m| m != 0).count() < self.points.len();
         }
         let built = self.field.build(&self.mask, roi, n_levels);
         let new_pose = match (&built, kind) {
             (Err(_), _) => pose,
+            (Ok(()), _) if refilling => pose,
             (Ok(()), StepKind::Lm) => {
                 let levels: Vec<_> = (0..n_levels)
                     .rev()
@@ -994,6 +1024,11 @@ impl Solver {
                     &visible,
                     &self.pivot_o,
                     &deltas,
+                    // Only while the outline is cut by the border: with the whole outline in view
+                    // LM undoes a noise-level search move, and under occlusion the test held back
+                    // the search steps that kept the pose on the object (objects suite, mug at
+                    // 0.6 m 30 % occluded: 3.2 mm plain, 23 mm with the test everywhere).
+                    if whole { 0.0 } else { min_t },
                 );
                 match &self.last_lm {
                     Some(lm) if lm.n_held > 0 && out.candidate > 0 => {
@@ -1979,6 +2014,53 @@ mod tests {
             dx < 5e-4 && dt < 0.003 && !est.lost,
             "{dx} m sideways, {dt} m off after 5 ms of events: {est:?}"
         );
+    }
+
+    #[test]
+    fn after_a_gap_a_sparse_fresh_field_moves_nothing_under_the_significance_test() {
+        // As above, but the events resume sparsely: an eighth of the outline fires, far fewer
+        // pixels than S* has points. EDFT⁺ (search_min_t 3) holds the pose until the field has
+        // filled; the paper's plain argmin (search_min_t 0) already moves on it.
+        let moved = Pose::from_parts(
+            Translation3::new(0.012, 0.0, 0.6),
+            UnitQuaternion::identity(),
+        );
+        for min_t in [None, Some(0.0)] {
+            let (cam, pts, pose) = square();
+            let config = TrackerConfig {
+                ingest_limit: IngestLimit::Off,
+                search_min_t: min_t,
+                ..TrackerConfig::default()
+            };
+            let mut core = TrackerCore::new(&cam, pts.clone(), pose, config).unwrap();
+            for k in 0..10 {
+                let ev = outline_events(&cam, &pts, &pose, k * 1000, 400);
+                core.update(ev.as_slice()).unwrap();
+            }
+            let locked = core.latest();
+            assert!(!locked.lost);
+            let sparse: Vec<[f32; 3]> = pts.iter().step_by(8).copied().collect();
+            let mut est = locked;
+            for k in 70..75 {
+                let ev = outline_events(&cam, &sparse, &moved, k * 1000, 50);
+                est = core.update(ev.as_slice()).unwrap();
+            }
+            if min_t.is_none() {
+                assert_eq!(est.pose, locked.pose, "held while the field refills");
+                // Once the whole outline fires, the pose follows it.
+                for k in 75..80 {
+                    let ev = outline_events(&cam, &pts, &moved, k * 1000, 400);
+                    est = core.update(ev.as_slice()).unwrap();
+                }
+                let dx = (est.pose.translation.x - 0.012).abs();
+                assert!(dx < 5e-4 && !est.lost, "{dx} m sideways: {est:?}");
+            } else {
+                assert_ne!(
+                    est.pose, locked.pose,
+                    "the plain argmin moves on the sparse field"
+                );
+            }
+        }
     }
 
     #[test]

@@ -172,8 +172,11 @@ impl PyTracker {
     /// solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6,
     /// roi_margin_px=48.0, ingest_core_share=0.5, max_ingest_rate=None, anti_flicker_hz=[],
     /// held_axes=None, mesh=None, view_spacing_deg=15.0, depth_range_m=(0.3, 1.5), n_points=1000,
-    /// seed=0, lost_below=0.3, relock_above=0.45): held_axes (K, 6) are continuous symmetry axes of the object (unit axis, then a
+    /// seed=0, lost_below=0.3, relock_above=0.45, search_min_t=None): held_axes (K, 6) are continuous symmetry axes of the object (unit axis, then a
     /// point on it; object frame, metres) whose rotation every update keeps at the prior.
+    /// While the object is partly out of view, a search step moves only when its best candidate
+    /// beats staying put by `search_min_t` standard errors of the per-point gains (None: 3 for
+    /// edft+, 0 = the plain argmin otherwise).
     ///
     /// With `mesh`, a bank of viewpoint templates (S* of `n_points` every `view_spacing_deg` over
     /// the viewing sphere, searched over `depth_range_m`) lets the tracker find the object again by
@@ -181,7 +184,7 @@ impl PyTracker {
     /// tracker starts lost and searches; that needs `mesh`. The estimate turns lost when its
     /// confidence falls below `lost_below` and is trusted again from `relock_above` on.
     #[new]
-    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None, anti_flicker_hz=Vec::new(), held_axes=None, mesh=None, view_spacing_deg=15.0, depth_range_m=(0.3, 1.5), n_points=1000, seed=0, lost_below=evcore::tracker::LOST_BELOW, relock_above=evcore::tracker::RELOCK_ABOVE))]
+    #[pyo3(signature = (camera, points_o, T_c_o, solver="edft+", frontend="scarf", n_search=4, tau_px=10.0, levels=3, lm_iterations=6, roi_margin_px=48.0, ingest_core_share=Some(0.5), max_ingest_rate=None, anti_flicker_hz=Vec::new(), held_axes=None, mesh=None, view_spacing_deg=15.0, depth_range_m=(0.3, 1.5), n_points=1000, seed=0, lost_below=evcore::tracker::LOST_BELOW, relock_above=evcore::tracker::RELOCK_ABOVE, search_min_t=None))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -206,6 +209,7 @@ impl PyTracker {
         seed: u64,
         lost_below: f32,
         relock_above: f32,
+        search_min_t: Option<f32>,
     ) -> PyResult<Self> {
         let pose = T_c_o.map(|m| pose_arg(&m)).transpose()?;
         let points = points_o.map(|p| points_arg(&p)).transpose()?;
@@ -246,6 +250,7 @@ impl PyTracker {
             anti_flicker_hz,
             lost_below,
             relock_above,
+            search_min_t,
             ..TrackerConfig::default()
         };
         let bank_params = BankParams {

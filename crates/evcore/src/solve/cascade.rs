@@ -3,6 +3,11 @@
 
 use crate::error::{Error, Result};
 
+/// EDFT⁺'s search steps on an outline cut by the image border move only when their best candidate
+/// beats the null one by this many standard errors of the per-point gains (issue 13: noise-level
+/// wins ratcheted small, far objects at the image border to 60 mm / 13°).
+pub const EDFT_PLUS_SEARCH_MIN_T: f32 = 3.0;
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SolverMode {
     /// The cascade: 1 pyramidal LM step, then `n_search` hypothesis-search steps.
@@ -30,6 +35,17 @@ impl SolverMode {
                     Self::NAMES.join(", ")
                 ))
             })
+    }
+
+    /// The significance a search step's best candidate needs by default before the step moves (see
+    /// [`crate::solve::search::search_step`]): [`EDFT_PLUS_SEARCH_MIN_T`] in the cascade, where LM
+    /// does the fine registration and a noisy search step can only push the pose along directions
+    /// LM sees weakly; 0 (the paper's plain argmin) where the search is the whole solver.
+    pub fn default_search_min_t(self) -> f32 {
+        match self {
+            Self::EdftPlus => EDFT_PLUS_SEARCH_MIN_T,
+            Self::Edopts | Self::Edft => 0.0,
+        }
     }
 
     pub fn name(self) -> &'static str {
@@ -116,6 +132,10 @@ mod tests {
             assert_eq!(SolverMode::parse(name).unwrap(), mode);
             assert_eq!(mode.name(), name);
         }
+        // Only the cascade asks its search steps for a significant win by default.
+        assert_eq!(SolverMode::EdftPlus.default_search_min_t(), 3.0);
+        assert_eq!(SolverMode::Edopts.default_search_min_t(), 0.0);
+        assert_eq!(SolverMode::Edft.default_search_min_t(), 0.0);
         // One spelling per solver: no case or alias variants.
         for other in ["EDFT+", "edftplus", "edopt", "icp"] {
             assert!(SolverMode::parse(other).is_err(), "{other}");
