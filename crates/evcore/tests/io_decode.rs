@@ -419,7 +419,22 @@ fn decode_whole(format: Format, bytes: &[u8]) -> (EventBatch, Result<(), Error>)
     };
     let mut out = EventBatch::default();
     let res = d.decode(bytes, &mut out);
+    assert_time_bound(&d, &out);
     (out, res)
+}
+
+/// The decoder's time bound holds every event it output, errors included (the slicer skips
+/// searching for boundaries above it).
+fn assert_time_bound(d: &Decoder, out: &EventBatch) {
+    if let Some(&t_max) = out.t_us.iter().max() {
+        let bound = d
+            .t_bound()
+            .expect("events were output, so the time base is known");
+        assert!(
+            t_max <= bound,
+            "event at {t_max} µs above the bound {bound}"
+        );
+    }
 }
 
 /// Feeds `bytes` in pieces cut at `cuts` (sorted, possibly repeated), stopping at the first error.
@@ -432,7 +447,9 @@ fn decode_chunked(format: Format, bytes: &[u8], cuts: &[usize]) -> (EventBatch, 
     let mut start = 0;
     for &c in cuts.iter().chain(std::iter::once(&bytes.len())) {
         let c = c.clamp(start, bytes.len());
-        if let Err(e) = d.decode(&bytes[start..c], &mut out) {
+        let res = d.decode(&bytes[start..c], &mut out);
+        assert_time_bound(&d, &out);
+        if let Err(e) = res {
             return (out, Err(e));
         }
         start = c;
@@ -602,6 +619,9 @@ proptest! {
         let mut d = Evt3Decoder::with_geometry(width, height).unwrap();
         let mut out = EventBatch::default();
         let ok = d.decode(&bytes, &mut out).is_ok();
+        if let Some(&t_max) = out.t_us.iter().max() {
+            prop_assert!(d.t_bound().is_some_and(|b| t_max <= b));
+        }
         prop_assert_eq!((out, ok), evt3_reference(&bytes, width, height));
     }
 

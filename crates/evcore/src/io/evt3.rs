@@ -57,6 +57,9 @@ pub struct Evt3Words {
     height: u32,
     /// `None` until the first TIME_HIGH.
     state: Option<State>,
+    /// The latest time any event decoded so far can carry (the largest time register value);
+    /// `i64::MIN` before the first TIME_HIGH.
+    t_max: i64,
     stats: DecodeStats,
 }
 
@@ -67,6 +70,7 @@ impl Default for Evt3Words {
             width: MAX_SENSOR_SIDE_PX,
             height: MAX_SENSOR_SIDE_PX,
             state: None,
+            t_max: i64::MIN,
             stats: DecodeStats::default(),
         }
     }
@@ -79,6 +83,10 @@ impl WordDecoder for Evt3Words {
 
     fn stats(&self) -> &DecodeStats {
         &self.stats
+    }
+
+    fn t_bound(&self) -> Option<i64> {
+        (self.t_max > i64::MIN).then_some(self.t_max)
     }
 
     fn decode_words<O: DecodeTarget>(&mut self, bytes: &[u8], out: &mut O) -> Result<()> {
@@ -98,6 +106,7 @@ impl WordDecoder for Evt3Words {
                             t_us: time_high_us,
                             ..State::default()
                         });
+                        self.t_max = self.t_max.max(time_high_us);
                         break;
                     }
                     self.stats.skipped_before_time_high += 1;
@@ -189,6 +198,8 @@ impl Evt3Words {
         let mut vbase = state.vbase;
         let mut counts = [0u64; 16];
         let mut loops = self.stats.time_loops;
+        // Every event takes the time register's value: its largest value bounds their times.
+        let mut t_max = self.t_max;
         let mut n = 0usize;
         let mut res = Ok(());
         let mut words = as_words(block).iter();
@@ -256,12 +267,16 @@ impl Evt3Words {
                     vbase = vbase.saturating_add(step << 16);
                 }
                 VECT_BASE_X => vbase = u32::from(w),
-                TIME_LOW => t = high + i64::from(w & 0xfff),
+                TIME_LOW => {
+                    t = high + i64::from(w & 0xfff);
+                    t_max = t_max.max(t);
+                }
                 TIME_HIGH => {
                     let low = t - high;
                     let raw = i64::from(w & 0xfff) << 12;
                     high = unwrap_time_base(high, raw, &mut loops, PERIOD_US, WRAP_GUARD_US);
                     t = high + low;
+                    t_max = t_max.max(t);
                 }
                 _ => {}
             }
@@ -276,6 +291,7 @@ impl Evt3Words {
             *total += k;
         }
         self.stats.time_loops = loops;
+        self.t_max = t_max;
         (n, res, block.len() / 2 - words.len())
     }
 }
