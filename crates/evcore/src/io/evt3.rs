@@ -203,7 +203,7 @@ impl Evt3Words {
         let mut n = 0usize;
         let mut res = Ok(());
         let mut words = as_words(block).iter();
-        for &c in words.by_ref() {
+        while let Some(&c) = words.next() {
             let w = u16::from_le_bytes(c);
             if w & 0xd000 == 0 {
                 // ADDR_Y (0x0) or ADDR_X (0x2): bit 13 tells them apart.
@@ -266,7 +266,45 @@ impl Evt3Words {
                     // run of vectors in garbage input must not wrap back into the sensor.
                     vbase = vbase.saturating_add(step << 16);
                 }
-                VECT_BASE_X => vbase = u32::from(w),
+                VECT_BASE_X => {
+                    vbase = u32::from(w);
+                    // Real streams follow a base with VECT_12, VECT_12, VECT_8 (32 pixels):
+                    // taken as one 32-bit mask, when all of it lies on the sensor, that is one
+                    // dispatch instead of four. Anything else goes word by word.
+                    if let [a, b, c, ..] = words.as_slice() {
+                        let (a, b, c) = (
+                            u16::from_le_bytes(*a),
+                            u16::from_le_bytes(*b),
+                            u16::from_le_bytes(*c),
+                        );
+                        let run = (a >> 12 == VECT_12) & (b >> 12 == VECT_12) & (c >> 12 == VECT_8);
+                        let bits = u64::from(a & 0xfff)
+                            | (u64::from(b & 0xfff) << 12)
+                            | (u64::from(c & 0xff) << 24);
+                        let x_base = u64::from(w & 0x7ff);
+                        let nonempty = 0u64.wrapping_sub(u64::from(bits != 0));
+                        let x_end = (x_base + 64 - u64::from(bits.leading_zeros())) & nonempty;
+                        if run & (x_end <= width) & ((y_sh & nonempty) < height_sh) {
+                            // x stays below width <= 2048 for the events counted (see above).
+                            let first = x_base | y_sh | (u64::from(w & 0x800) << 21);
+                            let mut m = n;
+                            for j in 0..8 {
+                                let nibble = ((bits >> (4 * j)) & 0xf) as usize;
+                                let origin = first + 4 * j;
+                                for (k, off) in NIBBLE_BITS[nibble].iter().enumerate() {
+                                    // SAFETY: slot < n + 32 <= 12 * (words up to the VECT_8).
+                                    unsafe { slots.put_packed(m + k, origin + u64::from(*off), t) };
+                                }
+                                m += nibble.count_ones() as usize;
+                            }
+                            n = m;
+                            vbase = vbase.saturating_add(32 << 16);
+                            counts[usize::from(VECT_12)] += 2;
+                            counts[usize::from(VECT_8)] += 1;
+                            words.nth(2);
+                        }
+                    }
+                }
                 TIME_LOW => {
                     t = high + i64::from(w & 0xfff);
                     t_max = t_max.max(t);
