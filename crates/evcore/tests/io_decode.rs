@@ -419,7 +419,22 @@ fn decode_whole(format: Format, bytes: &[u8]) -> (EventBatch, Result<(), Error>)
     };
     let mut out = EventBatch::default();
     let res = d.decode(bytes, &mut out);
+    assert_time_bound(&d, &out);
     (out, res)
+}
+
+/// The decoder's time bound holds every event it output, errors included (the slicer skips
+/// searching for boundaries above it).
+fn assert_time_bound(d: &Decoder, out: &EventBatch) {
+    if let Some(&t_max) = out.t_us.iter().max() {
+        let bound = d
+            .t_bound()
+            .expect("events were output, so the time base is known");
+        assert!(
+            t_max <= bound,
+            "event at {t_max} µs above the bound {bound}"
+        );
+    }
 }
 
 /// Feeds `bytes` in pieces cut at `cuts` (sorted, possibly repeated), stopping at the first error.
@@ -432,7 +447,9 @@ fn decode_chunked(format: Format, bytes: &[u8], cuts: &[usize]) -> (EventBatch, 
     let mut start = 0;
     for &c in cuts.iter().chain(std::iter::once(&bytes.len())) {
         let c = c.clamp(start, bytes.len());
-        if let Err(e) = d.decode(&bytes[start..c], &mut out) {
+        let res = d.decode(&bytes[start..c], &mut out);
+        assert_time_bound(&d, &out);
+        if let Err(e) = res {
             return (out, Err(e));
         }
         start = c;
@@ -602,6 +619,9 @@ proptest! {
         let mut d = Evt3Decoder::with_geometry(width, height).unwrap();
         let mut out = EventBatch::default();
         let ok = d.decode(&bytes, &mut out).is_ok();
+        if let Some(&t_max) = out.t_us.iter().max() {
+            prop_assert!(d.t_bound().is_some_and(|b| t_max <= b));
+        }
         prop_assert_eq!((out, ok), evt3_reference(&bytes, width, height));
     }
 
@@ -698,5 +718,63 @@ proptest! {
         let whole = decode_whole(*format, data);
         prop_assert!(whole.1.is_ok());
         prop_assert_eq!(decode_chunked(*format, data, &cuts), whole);
+    }
+}
+
+/// Vector runs (VECT_BASE_X, VECT_12, VECT_12, VECT_8, which the decoder takes as one 32-bit mask
+/// when the run is whole within one call) decode as they do word by word (one word per call, no
+/// run ever whole): same events, same error, same word counts. Bases and masks reach past the
+/// sensor's edge, masks are often empty, and ADDR_Y words move y on and off the sensor.
+#[test]
+fn vector_runs_decode_as_word_by_word() {
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for case in 0..3000 {
+        let (width, height) = (1 + (next() % 1400) as u32, 1 + (next() % 800) as u32);
+        let mut words: Vec<u16> = vec![0x8000 | (next() & 0xfff) as u16];
+        for _ in 0..(next() % 40) {
+            let r = next();
+            let m = next() as u16;
+            // A quarter of the masks empty.
+            let mask = |bits: u32| {
+                if r >> 62 == 0 {
+                    0
+                } else {
+                    m & ((1 << bits) - 1)
+                }
+            };
+            match r % 8 {
+                0..=3 => words.extend([
+                    0x3000 | ((next() as u16 & 0xfff) % (width as u16 + 40)),
+                    0x4000 | mask(12),
+                    0x4000 | (mask(12) ^ (r as u16 & 0xfff)),
+                    0x5000 | mask(8),
+                ]),
+                4 => words.push((next() as u16 & 0x7ff) % (height as u16 + 4)),
+                5 => words.push(0x2000 | ((next() as u16 & 0xfff) % (width as u16))),
+                6 => words.push(0x6000 | (next() as u16 & 0xfff)),
+                _ => words
+                    .push([0x4000, 0x5000, 0x3000][(r >> 8) as usize % 3] | next() as u16 & 0xfff),
+            }
+        }
+        let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+        let run = |step: usize| {
+            let mut d = Evt3Decoder::with_geometry(width, height).unwrap();
+            let mut out = EventBatch::default();
+            let mut res = Ok(());
+            for chunk in bytes.chunks(step) {
+                res = d.decode(chunk, &mut out);
+                if res.is_err() {
+                    break;
+                }
+            }
+            (out, res.map_err(|e| e.to_string()), d.stats().clone())
+        };
+        assert_eq!(run(bytes.len().max(1)), run(2), "case {case}");
     }
 }

@@ -24,6 +24,9 @@ pub struct Evt2Words {
     height: u32,
     /// Time base in µs with wraps applied; `None` until the first TIME_HIGH.
     time_high_us: Option<i64>,
+    /// The largest time base so far (an event adds at most 63 µs to it); `i64::MIN` before the
+    /// first TIME_HIGH.
+    base_max: i64,
     stats: DecodeStats,
 }
 
@@ -34,6 +37,7 @@ impl Default for Evt2Words {
             width: MAX_SENSOR_SIDE_PX,
             height: MAX_SENSOR_SIDE_PX,
             time_high_us: None,
+            base_max: i64::MIN,
             stats: DecodeStats::default(),
         }
     }
@@ -46,6 +50,10 @@ impl WordDecoder for Evt2Words {
 
     fn stats(&self) -> &DecodeStats {
         &self.stats
+    }
+
+    fn t_bound(&self) -> Option<i64> {
+        (self.base_max > i64::MIN).then(|| self.base_max.saturating_add(0x3f))
     }
 
     fn decode_words<O: DecodeTarget>(&mut self, bytes: &[u8], out: &mut O) -> Result<()> {
@@ -70,6 +78,7 @@ impl WordDecoder for Evt2Words {
                 }
             }
         };
+        let mut base_max = self.base_max.max(base);
         // At most one event per word.
         let slots = out.reserve_slots(words.len());
         let (width, height) = (self.width, self.height);
@@ -110,6 +119,7 @@ impl WordDecoder for Evt2Words {
                         PERIOD_US,
                         WRAP_GUARD_US,
                     );
+                    base_max = base_max.max(base);
                 }
             }
         }
@@ -121,6 +131,7 @@ impl WordDecoder for Evt2Words {
             *total += k;
         }
         self.time_high_us = Some(base);
+        self.base_max = base_max;
         match bad {
             None => Ok(()),
             Some((x, y)) => Err(Error::Decode(format!(

@@ -61,6 +61,8 @@ pub trait WordDecoder: Default {
     /// Reject events outside `width`×`height` pixels (already checked against the format's range).
     fn set_geometry(&mut self, width: u32, height: u32);
     fn stats(&self) -> &DecodeStats;
+    /// An upper bound of the time (µs) of every event decoded so far; None before the first.
+    fn t_bound(&self) -> Option<i64>;
     /// Decode whole words (the length is a multiple of the word size), appending to `out`.
     fn decode_words<O: DecodeTarget>(&mut self, bytes: &[u8], out: &mut O) -> Result<()>;
 }
@@ -105,6 +107,12 @@ impl<D: WordDecoder, const N: usize> Stream<D, N> {
     /// Bytes of an incomplete word held back for the next call.
     pub fn pending_bytes(&self) -> usize {
         self.carry.len
+    }
+
+    /// An upper bound of the time (µs) of every event output so far (None before the time base
+    /// is known): no event at or after a later time has been output.
+    pub fn t_bound(&self) -> Option<i64> {
+        self.words.t_bound()
     }
 
     /// Decodes the next chunk of the stream, appending its events to `out` (columns or records).
@@ -162,6 +170,14 @@ impl Decoder {
         match self {
             Self::Evt2(d) => d.stats(),
             Self::Evt3(d) => d.stats(),
+        }
+    }
+
+    /// See [`Stream::t_bound`].
+    pub fn t_bound(&self) -> Option<i64> {
+        match self {
+            Self::Evt2(d) => d.t_bound(),
+            Self::Evt3(d) => d.t_bound(),
         }
     }
 }

@@ -143,7 +143,12 @@ impl<R: Read> RawReader<R> {
         let (mut scanned, mut ends) = (0, Vec::new());
         loop {
             // Indices are relative to `pos`, which `fill` may move with the events after it.
-            rule.find_ends(&self.buf[self.pos..], &mut scanned, &mut ends);
+            // Times were offset by t0 after decoding, saturating: the bound moves with them.
+            let bound = self
+                .decoder
+                .t_bound()
+                .map(|b| b.saturating_add(self.header.t0_us));
+            rule.find_ends(&self.buf[self.pos..], bound, &mut scanned, &mut ends);
             let held = self.buf.len() - self.pos;
             if self.eof {
                 if held > ends.last().copied().unwrap_or(0) {

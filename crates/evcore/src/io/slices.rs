@@ -57,10 +57,13 @@ impl SliceRule {
     /// Appends to `ends` the end of every slice completed within `events` (which starts at a
     /// slice's start) after those already in `ends`, up to [`MAX_SLICES_PER_RUN`]. `scanned`
     /// events from the start are known to lie before the next time boundary; it is advanced so
-    /// that a call after more events were appended does not look at them again.
+    /// that a call after more events were appended does not look at them again. `t_bound`, when
+    /// known, is at least the time of every event in `events`: no boundary above it is searched
+    /// for (the scan of a run's last, incomplete slice is skipped).
     pub(crate) fn find_ends(
         &mut self,
         events: &[EventCd],
+        t_bound: Option<i64>,
         scanned: &mut usize,
         ends: &mut Vec<usize>,
     ) {
@@ -70,6 +73,10 @@ impl SliceRule {
                 let end = end_us.get_or_insert_with(|| grid_end(first.t, *delta_t_us));
                 // A boundary past i64::MAX cuts nothing: the rest of the stream is one slice.
                 while ends.len() < MAX_SLICES_PER_RUN && *end < i64::MAX {
+                    if t_bound.is_some_and(|b| b < *end) {
+                        *scanned = events.len();
+                        return;
+                    }
                     match first_at_or_after(&events[*scanned..], *end) {
                         Some(k) => {
                             *scanned += k;
@@ -120,7 +127,7 @@ mod tests {
         let ev = at(&[5, 12, 9, 31, 33, 18, 40]);
         let mut rule = SliceRule::time(10).unwrap();
         let (mut scanned, mut ends) = (0, Vec::new());
-        rule.find_ends(&ev, &mut scanned, &mut ends);
+        rule.find_ends(&ev, None, &mut scanned, &mut ends);
         // [5] ends at 12 (≥ 10); [12, 9] ends at 31 (≥ 20); [] ends at 31 (≥ 30); [31, 33, 18]
         // ends at 40; the slice from 40 is not complete yet.
         assert_eq!(ends, vec![1, 3, 3, 6]);
@@ -131,6 +138,21 @@ mod tests {
                 end_us: Some(50)
             }
         );
+    }
+
+    #[test]
+    fn no_boundary_above_the_time_bound_is_searched() {
+        let ev = at(&[5, 12, 9, 31]);
+        let mut rule = SliceRule::time(10).unwrap();
+        let (mut scanned, mut ends) = (0, Vec::new());
+        // Every event lies at or below 31: the boundaries 10, 20, 30 are found, 40 is not
+        // searched and the whole run counts as scanned.
+        rule.find_ends(&ev, Some(31), &mut scanned, &mut ends);
+        assert_eq!((ends, scanned), (vec![1, 3, 3], 4));
+        let mut rule = SliceRule::time(10).unwrap();
+        let (mut scanned, mut ends) = (0, Vec::new());
+        rule.find_ends(&ev, Some(9), &mut scanned, &mut ends);
+        assert_eq!((ends.len(), scanned), (0, 4));
     }
 
     #[test]
@@ -146,7 +168,7 @@ mod tests {
         let ev = at(&[0; 7]);
         let mut rule = SliceRule::count(3).unwrap();
         let (mut scanned, mut ends) = (0, vec![3]);
-        rule.find_ends(&ev, &mut scanned, &mut ends);
+        rule.find_ends(&ev, None, &mut scanned, &mut ends);
         assert_eq!(ends, vec![3, 6]);
     }
 
@@ -155,7 +177,7 @@ mod tests {
         let ev = at(&[i64::MAX - 1, i64::MAX, i64::MAX]);
         let mut rule = SliceRule::time(1 << 62).unwrap();
         let (mut scanned, mut ends) = (0, Vec::new());
-        rule.find_ends(&ev, &mut scanned, &mut ends);
+        rule.find_ends(&ev, None, &mut scanned, &mut ends);
         assert!(ends.is_empty());
     }
 
