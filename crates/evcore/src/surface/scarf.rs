@@ -832,6 +832,7 @@ mod tests {
         single.writer().ingest(&pixels);
         let (mut writer, reader) = Scarf::new(w, h, 14, 1.0).unwrap().split();
         let done = std::sync::atomic::AtomicBool::new(false);
+        let reading = std::sync::atomic::AtomicBool::new(false);
         let roi = Roi {
             x0: 20,
             y0: 40,
@@ -840,7 +841,7 @@ mod tests {
         };
         let reads = std::thread::scope(|scope| {
             let r = reader.clone();
-            let done = &done;
+            let (done, reading) = (&done, &reading);
             let watcher = scope.spawn(move || {
                 let mut buf = vec![0u8; roi.area()];
                 let mut reads = 0usize;
@@ -848,9 +849,15 @@ mod tests {
                     r.fill_mask(roi, &mut buf);
                     assert!(ones(&buf) <= roi.area());
                     reads += 1;
+                    reading.store(true, std::sync::atomic::Ordering::Release);
                 }
                 reads
             });
+            // On a loaded machine the watcher may not run before the writer is done: the reads must
+            // overlap the writes for the test to mean anything, so the writer waits for the first.
+            while !reading.load(std::sync::atomic::Ordering::Acquire) {
+                std::thread::yield_now();
+            }
             for chunk in pixels.chunks(4096) {
                 writer.ingest(chunk);
             }
