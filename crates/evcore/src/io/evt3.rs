@@ -252,16 +252,8 @@ impl Evt3Words {
                     // For a non-empty mask x_end <= width <= 2048, so adding an offset to x never
                     // carries into y; an empty one may, but writes only slots left uncounted.
                     let first = x_base | y_sh | (u64::from(vbase & 0x800) << 21);
-                    let mut m = n;
-                    for j in 0..3 {
-                        let nibble = ((bits >> (4 * j)) & 0xf) as usize;
-                        let origin = first + 4 * j;
-                        for (k, off) in NIBBLE_BITS[nibble].iter().enumerate() {
-                            unsafe { slots.put_packed(m + k, origin + u64::from(*off), t) };
-                        }
-                        m += nibble.count_ones() as usize;
-                    }
-                    n = m;
+                    // SAFETY: slot < n + 12, the room of one word.
+                    n = unsafe { put_mask::<3, S>(slots, n, bits, first, t) };
                     // The advance since VECT_BASE_X counts in the high half, saturating: a long
                     // run of vectors in garbage input must not wrap back into the sensor.
                     vbase = vbase.saturating_add(step << 16);
@@ -287,17 +279,8 @@ impl Evt3Words {
                         if run & (x_end <= width) & ((y_sh & nonempty) < height_sh) {
                             // x stays below width <= 2048 for the events counted (see above).
                             let first = x_base | y_sh | (u64::from(w & 0x800) << 21);
-                            let mut m = n;
-                            for j in 0..8 {
-                                let nibble = ((bits >> (4 * j)) & 0xf) as usize;
-                                let origin = first + 4 * j;
-                                for (k, off) in NIBBLE_BITS[nibble].iter().enumerate() {
-                                    // SAFETY: slot < n + 32 <= 12 * (words up to the VECT_8).
-                                    unsafe { slots.put_packed(m + k, origin + u64::from(*off), t) };
-                                }
-                                m += nibble.count_ones() as usize;
-                            }
-                            n = m;
+                            // SAFETY: slot < n + 32 <= 12 * (words up to the VECT_8).
+                            n = unsafe { put_mask::<8, S>(slots, n, bits, first, t) };
                             vbase = vbase.saturating_add(32 << 16);
                             counts[usize::from(VECT_12)] += 2;
                             counts[usize::from(VECT_8)] += 1;
@@ -396,6 +379,34 @@ fn scan_addresses_in_lanes<const LANES: usize>(
         bad |= bads.iter().any(|&b| b != 0);
     }
     (n_y, n_x, !bad)
+}
+
+/// Writes one event per set bit of the low `NIBBLES` nibbles of a vector mask, at `first` plus
+/// the bit's index (a packed x | y | polarity record), into the slots from `n`; returns the count
+/// after them. Every nibble writes all four of its slots, padded, so there is no branch on the
+/// bits; only the count skips the padding.
+///
+/// # Safety
+/// Slots `n .. n + 4 * NIBBLES` must lie in the reserved room.
+#[inline(always)]
+unsafe fn put_mask<const NIBBLES: usize, S: Slots>(
+    slots: S,
+    n: usize,
+    bits: u64,
+    first: u64,
+    t: i64,
+) -> usize {
+    let mut m = n;
+    for j in 0..NIBBLES {
+        let nibble = ((bits >> (4 * j)) & 0xf) as usize;
+        let origin = first + 4 * j as u64;
+        for (k, off) in NIBBLE_BITS[nibble].iter().enumerate() {
+            // SAFETY: m + k < n + 4 * NIBBLES, in the room the caller vouches for.
+            unsafe { slots.put_packed(m + k, origin + u64::from(*off), t) };
+        }
+        m += nibble.count_ones() as usize;
+    }
+    m
 }
 
 /// For each 4-bit vector mask, the offsets of its set bits in order, padded with zeros.
