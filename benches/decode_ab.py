@@ -16,7 +16,7 @@ import evservo
 from evservo.bench.latency import decode_comparison
 
 label, rounds = sys.argv[1], int(sys.argv[2])
-samples = Path(os.environ.get("EVSERVO_SAMPLES", "/work/shared/event-samples"))
+samples = Path(os.environ.get("EVSERVO_SAMPLES", Path(__file__).resolve().parents[2] / "shared/event-samples"))
 for name in sys.argv[3:] or [p.name for p in sorted(samples.glob("*.raw"))]:
     r = decode_comparison(samples / name, rounds)
     print(json.dumps(dict(label=label, file=name, load=os.getloadavg()[0], package=evservo.__file__, **r)), flush=True)

@@ -72,9 +72,7 @@ def play(path: str | Path, topic: str, rate: float = 1.0, packet_us: int = 1000,
     node = rclpy.create_node("evservo_play")
     try:
         pub = node.create_publisher(EventPacket, topic, _qos())
-        deadline = time.monotonic() + wait_s
-        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        subscribed(pub, wait_s)  # none in time: play to nobody, as a driver does
         wall0, t0, seq = None, None, 0
         for ev in io.open_events(path, delta_t_us=packet_us):
             if len(ev) == 0:
@@ -101,6 +99,17 @@ def play(path: str | Path, topic: str, rate: float = 1.0, packet_us: int = 1000,
     finally:
         node.destroy_node()
         rclpy.try_shutdown()  # a Ctrl-C has shut the context down already (rclpy's own SIGINT handler)
+
+
+def subscribed(pub: Any, timeout_s: float) -> bool:
+    """Whether ``pub`` has matched a subscriber within ``timeout_s`` (waits for it). Messages
+    published before discovery matched the two never reach that subscriber (volatile topics)."""
+    deadline = time.monotonic() + timeout_s
+    while pub.get_subscription_count() == 0:
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.01)
+    return True
 
 
 def _camera_from_info(msg: Any) -> _evcore.Camera:

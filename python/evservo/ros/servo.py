@@ -35,7 +35,7 @@ from evservo import _evcore
 from evservo.io import EVENT_CD
 from evservo.realloop import RealLoopConfig, RealLoopResult, run_real_loop
 from evservo.robots.config import RigConfig
-from evservo.ros.nodes import _camera_from_info, _ros
+from evservo.ros.nodes import _camera_from_info, _ros, subscribed
 
 #: Longest wait for the last (zero) twist to be acknowledged by its subscribers on the way out (s).
 ACK_TIMEOUT_S = 2.0
@@ -191,19 +191,6 @@ def twist_publisher(node: Any, topic: str, frame_id: str) -> tuple[Callable[[np.
     return send, pub
 
 
-def wait_for_subscriber(pub: Any, topic: str, timeout_s: float) -> None:
-    """Wait until ``pub`` has matched a subscriber (the arm's servo controller); ``ConnectionError``
-    if none within ``timeout_s``. Twists sent before discovery matched the two would never reach the
-    arm (volatile topic), and servoing with nobody listening moves nothing."""
-    deadline = time.monotonic() + timeout_s
-    while pub.get_subscription_count() == 0:
-        if time.monotonic() >= deadline:
-            raise ConnectionError(
-                f"no subscriber on {topic} within {timeout_s:g} s: is the servo controller running (or give --dry-run)?"
-            )
-        time.sleep(0.01)
-
-
 def run_servo(
     model: str, init_pose: np.ndarray, rig: RigConfig, cfg: RealLoopConfig, *, camera: _evcore.Camera | None = None,
     desired: np.ndarray | None = None, solver: str = "edft+", events_topic: str = "/event_camera/events",
@@ -237,8 +224,14 @@ def run_servo(
             workspace = None
         send, pub = twist_publisher(ros.node, twist_topic, ee_frame)
         if not cfg.dry_run:
+            # Twists sent before the arm's controller matched would be lost, and with nobody
+            # listening the loop would servo nothing.
             say(f"waiting up to {cfg.start_timeout_s:g} s for a subscriber on {twist_topic}")
-            wait_for_subscriber(pub, twist_topic, cfg.start_timeout_s)
+            if not subscribed(pub, cfg.start_timeout_s):
+                raise ConnectionError(
+                    f"no subscriber on {twist_topic} within {cfg.start_timeout_s:g} s: "
+                    "is the servo controller running (or give --dry-run)?"
+                )
         tracker = Tracker(camera, model, init_pose, solver=solver)
         arm = TwistSink(
             send, pose=pose, link=f"the twist subscribers of {twist_topic}", T_e_c=rig.T_e_c, limits=rig.limits,
