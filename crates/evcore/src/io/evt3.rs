@@ -342,6 +342,20 @@ fn scan_addresses_avx2(block: &[u8], width: u32, height: u32) -> (u64, u64, bool
     scan_addresses_in_lanes::<16>(block, width, height)
 }
 
+/// One word of the address pre-scan, as 0/1 flags: an ADDR_Y word, an ADDR_X word, and an address
+/// outside the sensor. Plain integer arithmetic, no branch, so the lane loop vectorises.
+#[inline(always)]
+fn classify_address(word: [u8; 2], width: u16, height: u16) -> (u16, u16, u16) {
+    let w = u16::from_le_bytes(word);
+    let (ty, v) = (w >> 12, w & 0x7ff);
+    let (is_y, is_x) = (u16::from(ty == ADDR_Y), u16::from(ty == ADDR_X));
+    (
+        is_y,
+        is_x,
+        (is_x & u16::from(v >= width)) | (is_y & u16::from(v >= height)),
+    )
+}
+
 /// [`scan_addresses`] over groups of `LANES` words, one 16-bit counter per lane.
 #[inline(always)]
 fn scan_addresses_in_lanes<const LANES: usize>(
@@ -358,21 +372,17 @@ fn scan_addresses_in_lanes<const LANES: usize>(
         let tail = groups.remainder();
         for group in groups {
             for k in 0..LANES {
-                let w = u16::from_le_bytes(group[k]);
-                let (ty, v) = (w >> 12, w & 0x7ff);
-                let (is_y, is_x) = (u16::from(ty == ADDR_Y), u16::from(ty == ADDR_X));
+                let (is_y, is_x, out) = classify_address(group[k], width, height);
                 ys[k] += is_y;
                 xs[k] += is_x;
-                bads[k] |= (is_x & u16::from(v >= width)) | (is_y & u16::from(v >= height));
+                bads[k] |= out;
             }
         }
         for &c in tail {
-            let w = u16::from_le_bytes(c);
-            let (ty, v) = (w >> 12, w & 0x7ff);
-            let (is_y, is_x) = (ty == ADDR_Y, ty == ADDR_X);
+            let (is_y, is_x, out) = classify_address(c, width, height);
             n_y += u64::from(is_y);
             n_x += u64::from(is_x);
-            bad |= (is_x & (v >= width)) | (is_y & (v >= height));
+            bad |= out != 0;
         }
         n_y += ys.iter().map(|&k| u64::from(k)).sum::<u64>();
         n_x += xs.iter().map(|&k| u64::from(k)).sum::<u64>();
