@@ -11,7 +11,8 @@ end-effector pose as PoseStamped on T, as an arm's state publisher would, and st
 ``--pose-after-twist`` seconds after the first twist (the arm's state publisher dies).
 
 Runs until ``--max-s`` or ``--idle-exit`` seconds without a message once some came, then writes
-OUT.json (before shutting ROS down) and exits. Prints ``ready`` once subscribed.
+OUT.json (before shutting ROS down) and exits. Prints ``ready`` once subscribed, and ``sees NAME``
+once for every other node its graph shows (the tests wait for it: see ``_Procs.start_seen``).
 """
 
 import argparse
@@ -91,8 +92,12 @@ def main() -> int:
         info.d = d
         info_pub = node.create_publisher(CameraInfo, f"{args.ns or '/event_camera'}/camera_info", 10)
     print("ready", flush=True)
+    seen = {node.get_name()}
     start = time.monotonic()
     while time.monotonic() - start < args.max_s:
+        for name in set(node.get_node_names()) - seen:
+            print(f"sees {name}", flush=True)
+            seen.add(name)
         if last[0] is not None and time.monotonic() - last[0] > args.idle_exit:
             break
         if info_pub is not None:
