@@ -11,8 +11,9 @@ end-effector pose as PoseStamped on T, as an arm's state publisher would, and st
 ``--pose-after-twist`` seconds after the first twist (the arm's state publisher dies).
 
 Runs until ``--max-s`` or ``--idle-exit`` seconds without a message once some came, then writes
-OUT.json (before shutting ROS down) and exits. Prints ``ready`` once subscribed, and ``sees NAME``
-once for every other node its graph shows (the tests wait for it: see ``_Procs.start_seen``).
+OUT.json (before shutting ROS down) and exits. Prints ``ready`` once subscribed, ``sees NAME`` once
+for every other node its graph shows, and ``matched`` once each of its topics (not /tf) has matched
+an endpoint of another node (the tests wait for these: see ``_Procs.start_seen`` in test_ros.py).
 """
 
 import argparse
@@ -49,6 +50,7 @@ def main() -> int:
         last[0] = time.monotonic()
 
     info_pub = info = pose_pub = pose = None
+    ends = []  # publishers and subscriptions that must match another node's
     if args.mode == "twist":
         from geometry_msgs.msg import TwistStamped
 
@@ -57,11 +59,12 @@ def main() -> int:
             stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
             keep("twists", [time.monotonic(), stamp, m.header.frame_id, [t.x, t.y, t.z, a.x, a.y, a.z]])
 
-        node.create_subscription(TwistStamped, args.params[0], on_twist, qos)
+        ends.append(node.create_subscription(TwistStamped, args.params[0], on_twist, qos))
         if args.ee_pose_topic:
             from geometry_msgs.msg import PoseStamped
 
             pose_pub = node.create_publisher(PoseStamped, args.ee_pose_topic, 10)
+            ends.append(pose_pub)
             pose = PoseStamped()
             pose.header.frame_id = "base_link"
             p, o = pose.pose.position, pose.pose.orientation
@@ -78,26 +81,33 @@ def main() -> int:
             return [p.x, p.y, p.z]
 
         ns = args.ns or "/evservo"
-        node.create_subscription(PoseStamped, f"{ns}/pose", lambda m: keep("poses", xyz(m.pose.position)), _qos())
+        ends.append(node.create_subscription(PoseStamped, f"{ns}/pose", lambda m: keep("poses", xyz(m.pose.position)),
+                                             _qos()))  # fmt: skip
         node.create_subscription(
             TFMessage, "/tf",
             lambda m: keep("tfs", [m.transforms[0].header.frame_id, m.transforms[0].child_frame_id,
                                    xyz(m.transforms[0].transform.translation)]),
             _qos(),
         )  # fmt: skip
-        node.create_subscription(String, f"{ns}/status", lambda m: keep("status", json.loads(m.data)), _qos())
+        ends.append(node.create_subscription(String, f"{ns}/status", lambda m: keep("status", json.loads(m.data)),
+                                             _qos()))  # fmt: skip
         w, h, fx, fy, cx, cy, *d = (float(v) for v in args.params)
         info = CameraInfo(width=int(w), height=int(h), distortion_model="plumb_bob")
         info.k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
         info.d = d
         info_pub = node.create_publisher(CameraInfo, f"{args.ns or '/event_camera'}/camera_info", 10)
+        ends.append(info_pub)
     print("ready", flush=True)
     seen = {node.get_name()}
+    matched = False
     start = time.monotonic()
     while time.monotonic() - start < args.max_s:
         for name in set(node.get_node_names()) - seen:
             print(f"sees {name}", flush=True)
             seen.add(name)
+        if not matched and all(_matches(e) for e in ends):
+            print("matched", flush=True)
+            matched = True
         if last[0] is not None and time.monotonic() - last[0] > args.idle_exit:
             break
         if info_pub is not None:
@@ -111,6 +121,10 @@ def main() -> int:
     node.destroy_node()
     rclpy.shutdown()
     return 0
+
+
+def _matches(end) -> int:
+    return end.get_subscription_count() if hasattr(end, "get_subscription_count") else end.get_publisher_count()
 
 
 if __name__ == "__main__":

@@ -76,9 +76,10 @@ class _Procs:
     one of them deaf to a third participant started before both, for good. Even one after another, a
     new participant stays cut off from the ones before it in about 1.5 % of starts (3 of 209 runs of
     the play/track exchange on one machine: the peer started first and a participant created after
-    the cut-off one both missed it, one started after it found it); so each node the test starts
-    must show up in the graph of the peer started before it (``start_seen``), else it is started
-    again, once. That is the middleware's discovery, not the node's behaviour under test."""
+    the cut-off one both missed it, one started after it found it; in another, the peer saw the
+    node's name but none of their topics matched). So each node the test starts must show up in the
+    peer started before it, its topics matched where they share some (``start_seen``), else it is
+    started again, once. That is the middleware's discovery, not the node's behaviour under test."""
 
     def __init__(self, env: dict, logs: Path) -> None:
         self.env, self.logs, self.procs = env, logs, []
@@ -96,22 +97,27 @@ class _Procs:
     def evservo(self, *args: str) -> subprocess.Popen:
         return self.start("-m", "evservo.cli", *args)
 
-    def start_seen(self, witness: subprocess.Popen, node: str, *args: str, timeout_s: float = 15) -> subprocess.Popen:
-        """``evservo ARGS``, whose ROS node ``node`` the already running ``witness`` (a tests/ros_peer.py)
-        must see within ``timeout_s``; a start it does not see is killed and made once more."""
+    def start_seen(self, witness: subprocess.Popen, sign: str, *args: str, timeout_s: float = 15) -> subprocess.Popen:
+        """``evservo ARGS``, once the already running ``witness`` (a tests/ros_peer.py) prints ``sign``
+        (``sees NODE``, or ``matched``: its topics matched the new node's) within ``timeout_s``, or
+        once the process ended (a player can be done before the peer's graph shows it); a start still
+        running unnoticed is killed and made once more."""
         for attempt in range(2):
             p = self.evservo(*args)
-            if self._printed(witness, f"sees {node}", timeout_s):
+            if self._printed(witness, sign, timeout_s, until_exit=p):
                 return p
             self._kill(p)
             p.wait()
-            print(f"{node} (attempt {attempt + 1}) did not show up in the peer's graph within {timeout_s} s")
-        pytest.fail(f"{node} never showed up in the peer's graph: {' '.join(args)}\n{self.output(witness)}")
+            print(f"no {sign!r} from the peer within {timeout_s} s of starting {args[:2]} (attempt {attempt + 1})")
+        pytest.fail(f"the peer never printed {sign!r} for {' '.join(args)}\n{self.output(witness)}")
 
-    def _printed(self, p: subprocess.Popen, text: str, timeout_s: float) -> bool:
+    def _printed(
+        self, p: subprocess.Popen, text: str, timeout_s: float, until_exit: subprocess.Popen | None = None
+    ) -> bool:
+        """Whether ``p`` printed ``text`` within ``timeout_s`` (or ``until_exit`` ended first)."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            if text in "".join(self.output(p)):
+            if text in "".join(self.output(p)) or (until_exit is not None and until_exit.poll() is not None):
                 return True
             if p.poll() is not None:
                 return False
@@ -195,10 +201,10 @@ def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros
         topics = ["--events-topic", f"{ns}/events", "--camera-info-topic", f"{ns}/camera_info",
                   "--pose-topic", f"{ns}/pose", "--status-topic", f"{ns}/status"]  # fmt: skip
         # One participant after another, each seen by the peer (see _Procs).
-        track = procs.start_seen(peer, "evservo_track", "ros", "track", "--model", rec.object, "--init-pose", init,
+        track = procs.start_seen(peer, "matched", "ros", "track", "--model", rec.object, "--init-pose", init,
                                  "--idle-exit", "2", *topics, *viewer)  # fmt: skip
         procs.wait_line(track, "listening on")
-        play = procs.start_seen(peer, "evservo_play", "ros", "play", str(small_rec), "--topic", f"{ns}/events",
+        play = procs.start_seen(peer, "sees evservo_play", "ros", "play", str(small_rec), "--topic", f"{ns}/events",
                                 "--wait", "60")  # fmt: skip
         _, err_p = procs.wait(play)
         out_t, err_t = procs.wait(track)
@@ -240,10 +246,10 @@ def test_track_node_without_intrinsics_waits_for_them_and_ends_with_a_clear_erro
         # A witness only (it publishes no CameraInfo): it sees each node come up (see _Procs).
         peer = procs.start(str(PEER), str(tmp_path / "peer.json"), "twist", f"{ns}/unused")
         procs.wait_line(peer, "ready")
-        track = procs.start_seen(peer, "evservo_track", "ros", "track", "--model", rec.object, "--init-pose",
+        track = procs.start_seen(peer, "sees evservo_track", "ros", "track", "--model", rec.object, "--init-pose",
                                  _pose_text(rec.gt_T[0]), "--idle-exit", "0.5", *topics)  # fmt: skip
         procs.wait_line(track, "listening on")
-        play = procs.start_seen(peer, "evservo_play", "ros", "play", str(small_rec), "--topic", f"{ns}/events",
+        play = procs.start_seen(peer, "sees evservo_play", "ros", "play", str(small_rec), "--topic", f"{ns}/events",
                                 "--wait", "60")  # fmt: skip
         procs.wait(play)
         procs.wait_line(track, "wait for a sensor_msgs/CameraInfo")
@@ -284,7 +290,7 @@ def _servo(
                        *peer_args)  # fmt: skip
     procs.wait_line(peer, "ready")
     servo = procs.start_seen(
-        peer, "evservo_servo", "ros", "servo", "--config", str(_rig(tmp_path, rec.camera)), "--model", rec.object,
+        peer, "matched", "ros", "servo", "--config", str(_rig(tmp_path, rec.camera)), "--model", rec.object,
         "--init-pose", _pose_text(rec.gt_T[0]), "--twist-topic", f"{ns}/twist", "--ee-frame", "flange",
         "--events-topic", f"{ns}/events",
         "--rate", "100", "--settle", "0.1", "--start-timeout", "60", "--stale-after", "0.5", "--max-jump", "1",
@@ -292,7 +298,7 @@ def _servo(
         "--out", str(tmp_path / "out"), *extra,
     )  # fmt: skip
     procs.wait_line(servo, "for the first events")  # subscribed and matched the arm: the player waits for it
-    procs.start_seen(peer, "evservo_play", "ros", "play", str(rec_path), "--topic", f"{ns}/events", "--wait", "60")
+    procs.start_seen(peer, "sees evservo_play", "ros", "play", str(rec_path), "--topic", f"{ns}/events", "--wait", "60")
     return servo, peer
 
 
