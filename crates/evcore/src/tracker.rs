@@ -274,6 +274,13 @@ const EXPECT_ACTIVE: f32 = 0.15;
 /// locked 0.05–1.0 with dips below 0.04 of ≤ 8 ms, hidden ≤ 0.025).
 const ACTIVE_MEMORY_US: i64 = 25_000;
 const QUIET: f32 = 0.04;
+/// ... and only if its own blocks fire at less than this share of the rate they fired at when it
+/// was last visibly active: a hidden object's blocks fall to the background's rate (edges
+/// occlusion: 0.5–0.8 → ≤ 0.04), while a followed object in front of a textured background that
+/// the moving camera makes fire keeps firing and only looks quiet against it (the brief's rendered
+/// drill, measured cost: 0.35 → 0.25 against 0.16 → 0.33 around, flagged lost with confidence 0.40
+/// before this test; benches/RESULTS.md, issue 12 "Round 6").
+const FALLEN: f32 = 0.5;
 
 /// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
 const MIN_VISIBLE_POINTS: usize = 6;
@@ -835,8 +842,9 @@ pub struct Solver {
     /// region around them hold one.
     uv: Vec<(f32, f32)>,
     near_model: Vec<bool>,
-    /// Event time (µs) of the last trusted update whose model was visibly active.
-    active_at_us: Option<i64>,
+    /// Event time (µs) of the last trusted update whose model was visibly active, and the share
+    /// of its blocks that fired then.
+    active_at: Option<(i64, f32)>,
     /// Why the current pose is lost, which decides how it is trusted again.
     lost_by: LostBy,
     /// A pose trusted again after a dropout on a still scene (see [`LostBy::Dropout`]): it stays
@@ -938,7 +946,7 @@ impl Solver {
             claim: Claim::default(),
             uv: Vec::new(),
             near_model: Vec::new(),
-            active_at_us: None,
+            active_at: None,
             lost_by: LostBy::Evidence,
             held_still: false,
             speed_px_s: 0.0,
@@ -996,7 +1004,7 @@ impl Solver {
         self.unconfirmed_since_us = None;
         self.lost_by = LostBy::Evidence;
         self.held_still = false;
-        self.active_at_us = None;
+        self.active_at = None;
         self.motion.reset();
         self.schedule.restart();
         self.publish();
@@ -1299,14 +1307,15 @@ impl Solver {
             }
             self.held_still = false;
         }
+        let on_model = self.evidence.active;
         if built && excess >= EXPECT_ACTIVE {
-            self.active_at_us = Some(t_us);
+            self.active_at = Some((t_us, on_model));
         }
         let quiet = built
             && !firing
-            && self
-                .active_at_us
-                .is_some_and(|t| (0..=ACTIVE_MEMORY_US).contains(&(t_us - t)));
+            && self.active_at.is_some_and(|(t, was)| {
+                (0..=ACTIVE_MEMORY_US).contains(&(t_us - t)) && on_model < FALLEN * was
+            });
         if confidence >= self.config.lost_below && !quiet {
             self.low_since_us = None;
             return false;
