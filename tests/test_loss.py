@@ -121,6 +121,9 @@ class _OracleTracker:
     def ingest(self, events, thin=False):
         self._core.ingest(events, thin=thin)
 
+    def advance_time(self, t_us):
+        self._core.advance_time(t_us)
+
     def step(self, n=1):
         e = self._core.step(n)
         t = e.t_us * 1e-6

@@ -216,6 +216,14 @@ class Tracker:
         :meth:`push` would keep under overload (``ingest_core_share`` / ``max_ingest_rate``)."""
         self._core.ingest(as_event_cd(events), thin=thin)
 
+    def advance_time(self, t_us: int) -> None:
+        """The stream has reached ``t_us`` (µs) with no events after those given (running or not), as a
+        decoder's empty slice or a driver's empty packet says. The sensor's background activity fires
+        every few µs, so 20 ms of stream time without one is a dropout: the estimate reads ``lost``
+        until the events are back and support the pose again. ``ValueError`` for a time before the
+        newest event."""
+        self._core.advance_time(int(t_us))
+
     def step(self, n: int = 1) -> Estimate:
         """Synchronous: run ``n`` single updates (one LM or one search step each) on the current events."""
         return self._core.step(n)
@@ -338,8 +346,9 @@ class Tracker:
         """The parts of the last tracked pose's confidence (synchronous only; fractions 0–1):
         ``support`` (model points near an active pixel, and near a recent event while the model
         moves), ``support_any`` (without the freshness test), ``chance`` (pixels around the model
-        near an active pixel), ``support_tight`` and ``chance_tight`` (the same within 1 px) and
-        ``visible`` (model points in the image)."""
+        near an active pixel), ``support_tight`` and ``chance_tight`` (the same within 1 px),
+        ``visible`` (model points in the image), and ``active`` / ``active_around`` (the share of the
+        model's 8×8 sensor blocks, and of the other blocks around it, that fired within the last 10 ms)."""
         return self._core.evidence()
 
     def stats(self) -> dict[str, float]:

@@ -40,6 +40,11 @@ pub struct Evidence {
     /// corner) has high support but leaves most of the events around it unexplained. Only
     /// measured when the query asks for it (global search), else 0.
     pub explained: f32,
+    /// Fraction of the model's sensor blocks that fired within the tracker's activity window, and
+    /// of the other blocks around the model (see [`crate::freshness::Activity`]); 0 unless the
+    /// tracker measured them.
+    pub active: f32,
+    pub active_around: f32,
 }
 
 /// Above this chance level a support test carries no evidence: nearly every placement passes it,
@@ -154,6 +159,7 @@ pub fn evidence(
         } else {
             0.0
         },
+        ..Evidence::default()
     }
 }
 

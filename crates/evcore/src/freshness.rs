@@ -133,6 +133,97 @@ impl Recency {
     }
 }
 
+/// How busy the blocks under the projected model are against the blocks around it, over the same
+/// recent window (fractions in [0, 1]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Activity {
+    /// Fraction of the model's blocks (the sensor blocks its visible points fall in) that fired.
+    pub on_model: f32,
+    /// Fraction of the other blocks of the region around the model that fired: what the
+    /// background and clutter alone make a block do.
+    pub around: f32,
+}
+
+impl Activity {
+    /// Firing of the model's blocks in excess of the blocks around them, as a share of the
+    /// headroom (0: the model's blocks are as quiet or as busy as their surroundings).
+    pub fn excess(&self) -> f32 {
+        if self.around >= 1.0 {
+            return 0.0;
+        }
+        ((self.on_model - self.around) / (1.0 - self.around)).clamp(0.0, 1.0)
+    }
+}
+
+impl Recency {
+    fn block_fired(&self, b: usize, since_us: i64) -> bool {
+        self.last_us[b].load(Ordering::Relaxed) >= since_us
+    }
+
+    /// [`Activity`] since `since_us` of the blocks under the rectified pixels `uv` (all inside
+    /// `region`) against the other blocks of `region` (rectified pixels), sampled every
+    /// [`ACTIVITY_STRIDE_PX`]. `near_model` is scratch.
+    pub fn activity(
+        &self,
+        uv: &[(f32, f32)],
+        region: Roi,
+        since_us: i64,
+        near_model: &mut Vec<bool>,
+    ) -> Activity {
+        let s = ACTIVITY_STRIDE_PX as f32;
+        let (gw, gh) = (
+            region.width.div_ceil(ACTIVITY_STRIDE_PX) as usize,
+            region.height.div_ceil(ACTIVITY_STRIDE_PX) as usize,
+        );
+        near_model.clear();
+        near_model.resize(gw * gh, false);
+        let (mut on, mut fired) = (0usize, 0usize);
+        for &(u, v) in uv {
+            let Some(b) = self.block_at(u, v) else {
+                continue;
+            };
+            on += 1;
+            fired += usize::from(self.block_fired(b, since_us));
+            let gx = ((u - region.x0 as f32) / s) as usize;
+            let gy = ((v - region.y0 as f32) / s) as usize;
+            if gx < gw && gy < gh {
+                near_model[gy * gw + gx] = true;
+            }
+        }
+        if on == 0 {
+            return Activity::default();
+        }
+        let (mut others, mut others_fired) = (0usize, 0usize);
+        for gy in 0..gh {
+            for gx in 0..gw {
+                if near_model[gy * gw + gx] {
+                    continue;
+                }
+                let (u, v) = (
+                    region.x0 as f32 + (gx as f32 + 0.5) * s,
+                    region.y0 as f32 + (gy as f32 + 0.5) * s,
+                );
+                if let Some(b) = self.block_at(u, v) {
+                    others += 1;
+                    others_fired += usize::from(self.block_fired(b, since_us));
+                }
+            }
+        }
+        Activity {
+            on_model: fired as f32 / on as f32,
+            around: if others == 0 {
+                0.0
+            } else {
+                others_fired as f32 / others as f32
+            },
+        }
+    }
+}
+
+/// Grid step (rectified pixels) of the blocks sampled around the model for [`Activity::around`]:
+/// a fraction of blocks needs a few hundred samples, not all of them.
+pub const ACTIVITY_STRIDE_PX: u32 = 16;
+
 /// How long the speed a model was moving at is remembered (µs): about the time a robot arm needs
 /// to bring a target from a fast move to rest.
 pub const SPEED_MEMORY_US: f64 = 300_000.0;

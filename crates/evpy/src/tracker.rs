@@ -369,6 +369,16 @@ impl PyTracker {
         })?
     }
 
+    /// The stream has reached `t_us` (µs) without events after those given (threaded or not): a
+    /// stretch of 20 ms of stream time without one reads as a dropout and the estimate as lost.
+    fn advance_time(&self, py: Python<'_>, t_us: i64) -> PyResult<()> {
+        self.with_state(py, |state| match state {
+            State::Sync(core) => core.advance_time(t_us).map_err(to_py),
+            State::Threaded(t) => t.advance_time(t_us).map_err(to_py),
+            State::Moving => Ok(()),
+        })?
+    }
+
     /// The newest estimate (threaded or not). Lock-free.
     fn latest(&self) -> PyEstimate {
         PyEstimate {
@@ -455,6 +465,8 @@ impl PyTracker {
         d.set_item("support_tight", e.support_tight)?;
         d.set_item("chance_tight", e.chance_tight)?;
         d.set_item("visible", e.visible)?;
+        d.set_item("active", e.active)?;
+        d.set_item("active_around", e.active_around)?;
         Ok(d)
     }
 

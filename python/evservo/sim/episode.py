@@ -129,8 +129,11 @@ class ClockedTracker:
     each batch under overload as ``Tracker.push`` does (within ``ingest_core_share`` of its core, by
     measured costs), so it keeps up with the stream and the solver sees fresh events; without, a
     producer slower than the stream falls behind.
-    Batches are queued with their arrival time; :meth:`advance` runs the steps whose start time has
-    come, and :meth:`latest` returns what had been published by a given time.
+    Batches are queued with their arrival time and the stream time they cover up to, which is
+    handed on with them (``Tracker.advance_time``, as a driver's empty packet would): a batch left
+    empty by a dropout still tells the tracker that time went on without events, and it steps on it.
+    :meth:`advance` runs the steps whose start time has come, and :meth:`latest` returns what had
+    been published by a given time.
     """
 
     def __init__(self, tracker: Tracker, cost: Callable[[str, float, int], float], thin: bool = True) -> None:
@@ -143,7 +146,7 @@ class ClockedTracker:
         self.cycle_len = tracker.cycle_len
         self.free_us = 0  # when the solver can start its next step
         self.producer_free_us = -(2**62)  # when the producer can start ingesting the next batch
-        self._queue: deque[tuple[int, np.ndarray]] = deque()
+        self._queue: deque[tuple[int, np.ndarray, int | None]] = deque()
         self._pending: deque[tuple[int, _evcore.Estimate]] = deque()
         self._latest = tracker.step(0)
         self._steps_without_events = self.cycle_len  # nothing to do before the first batch
@@ -151,10 +154,12 @@ class ClockedTracker:
         self.busy_us = 0  # solver time charged
         self.ingest_busy_us = 0  # producer time charged
 
-    def deliver(self, arrival_us: int, events: np.ndarray) -> None:
-        """Queue a batch that reaches the tracker at ``arrival_us`` (non-decreasing over calls)."""
-        if len(events):
-            self._queue.append((arrival_us, events))
+    def deliver(self, arrival_us: int, events: np.ndarray, until_us: int | None = None) -> None:
+        """Queue a batch that reaches the tracker at ``arrival_us`` (non-decreasing over calls) and
+        covers the stream up to ``until_us`` (µs; None: up to its last event, and an empty batch is
+        dropped)."""
+        if len(events) or until_us is not None:
+            self._queue.append((arrival_us, events, until_us))
 
     def _next_ingest_us(self) -> int | None:
         """When the producer starts ingesting the next queued batch (None: nothing queued)."""
@@ -164,9 +169,11 @@ class ClockedTracker:
         """Ingest, on the producer's timeline, every batch whose ingest starts by ``now_us``."""
         ingested = False
         while (start := self._next_ingest_us()) is not None and start <= now_us:
-            events = self._queue.popleft()[1]
+            _, events, until_us = self._queue.popleft()
             started = time.thread_time()
             self.tracker.ingest(events, thin=self.thin)
+            if until_us is not None:
+                self.tracker.advance_time(until_us)
             cost_us = max(1, round(self.cost("ingest", time.thread_time() - started, len(events)) * 1e6))
             self.producer_free_us = start + cost_us
             self.ingest_busy_us += cost_us
@@ -422,7 +429,7 @@ def run_episode(
                 T_w_c_k, T_w_o_k = rec["T_w_c"][k], rec["T_w_o"][k]
                 des = hold.T_c_o_des if hold.T_c_o_des is not None else T_c_o0
                 viewer.servo(t_us, events, est, core, T_w_c=T_w_c_k, T_c_o_des=des, T_w_o_true=T_w_o_k)
-            tracker.deliver(t_next + latency_us, events)
+            tracker.deliver(t_next + latency_us, events, until_us=t_next)
             tracker.advance(t_next)
             if progress is not None and (k + 1) % 100 == 0:
                 progress(100)
