@@ -466,6 +466,64 @@ fn truncated_field(
         }
         return;
     }
+    let bufs = WindowBufs {
+        col,
+        row8,
+        row16,
+        lut,
+    };
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        unsafe { windowed_field_avx2(mask, w, h, tau, window, out, bufs) };
+        return;
+    }
+    // Blocks of two SSE2 vectors: 32 bytes or 16 halfwords.
+    windowed_field::<32, 16>(mask, w, h, tau, window, out, bufs);
+}
+
+/// The scratch buffers of [`windowed_field`].
+struct WindowBufs<'a> {
+    col: &'a mut Vec<u8>,
+    row8: &'a mut Vec<u8>,
+    row16: &'a mut Vec<i16>,
+    lut: &'a mut Vec<f32>,
+}
+
+/// [`windowed_field`] compiled for AVX2: the same integer passes and table, so the same values,
+/// in vectors twice as wide (blocks of two 32-byte vectors).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn windowed_field_avx2(
+    mask: &[u8],
+    w: usize,
+    h: usize,
+    tau: f32,
+    window: usize,
+    out: &mut [f32],
+    bufs: WindowBufs,
+) {
+    windowed_field::<64, 32>(mask, w, h, tau, window, out, bufs);
+}
+
+/// The windowed build (⌊τ⌋ ≤ [`MAX_WINDOW_PX`]) in blocks of `B8` byte lanes or `B16` halfword
+/// lanes.
+#[inline(always)]
+fn windowed_field<const B8: usize, const B16: usize>(
+    mask: &[u8],
+    w: usize,
+    h: usize,
+    tau: f32,
+    window: usize,
+    out: &mut [f32],
+    bufs: WindowBufs,
+) {
+    let WindowBufs {
+        col,
+        row8,
+        row16,
+        lut,
+    } = bufs;
     // Any cap above τ is exact after truncation: a capped candidate is still farther than τ.
     let cap = (window + 1) as u8;
     column_pass(mask, w, h, cap, col);
@@ -473,11 +531,10 @@ fn truncated_field(
     let top = usize::from(cap) * usize::from(cap);
     lut.clear();
     lut.extend((0..=top).map(|d2| rounded_distance((d2 as f32).sqrt(), tau)));
-    // Blocks of two SSE2 vectors: 32 bytes or 16 halfwords.
     if window <= MAX_BYTE_WINDOW_PX {
-        row_pass::<u8, 32>(col, w, window, cap, out, row8, lut);
+        row_pass::<u8, B8>(col, w, window, cap, out, row8, lut);
     } else {
-        row_pass::<i16, 16>(col, w, window, cap, out, row16, lut);
+        row_pass::<i16, B16>(col, w, window, cap, out, row16, lut);
     }
 }
 
@@ -520,6 +577,7 @@ impl Lane for i16 {
 }
 
 /// Row pass over the capped column distances `col`: f of the squared distance, via `lut`.
+#[inline(always)]
 fn row_pass<T: Lane, const N: usize>(
     col: &[u8],
     w: usize,
@@ -533,6 +591,7 @@ fn row_pass<T: Lane, const N: usize>(
     // Pads of cap² keep the row window free of bounds tests; the right pad also rounds the
     // row up to whole blocks.
     let capsq = T::from_small(usize::from(cap) * usize::from(cap));
+    let far = lut[capsq.index().min(top)];
     row.clear();
     row.resize(window + w.div_ceil(N) * N + window, capsq);
     for (g, orow) in col.chunks_exact(w).zip(out.chunks_exact_mut(w)) {
@@ -540,7 +599,15 @@ fn row_pass<T: Lane, const N: usize>(
             *p = T::from_small(usize::from(gv) * usize::from(gv));
         }
         for (x0, oblock) in (0..w).step_by(N).zip(orow.chunks_mut(N)) {
-            let d2 = window_min::<T, N>(&row[x0..x0 + 2 * window + N], window);
+            let seg = &row[x0..x0 + 2 * window + N];
+            // Every candidate of the block capped (no active pixel within the cap of any of its
+            // pixels, most of a roi): each pixel's minimum is cap², whose f is `far`. The same
+            // value the window and the table give, without the window's full ⌊τ⌋ offsets.
+            if seg.iter().fold(capsq, |m, &v| m.min(v)) == capsq {
+                oblock.fill(far);
+                continue;
+            }
+            let d2 = window_min::<T, N>(seg, window);
             for (o, &d) in oblock.iter_mut().zip(&d2) {
                 *o = lut[d.index().min(top)];
             }
@@ -549,6 +616,7 @@ fn row_pass<T: Lane, const N: usize>(
 }
 
 /// Vertical distance to the nearest active pixel of the same column, capped at `cap`.
+#[inline(always)]
 fn column_pass(mask: &[u8], w: usize, h: usize, cap: u8, col: &mut Vec<u8>) {
     // Every entry is overwritten below, so only new ones need initialising.
     col.resize(w * h, 0);
@@ -573,7 +641,7 @@ fn column_pass(mask: &[u8], w: usize, h: usize, cap: u8, col: &mut Vec<u8>) {
 }
 
 /// One row of the downward sweep: 0 on active pixels, else one more than above, capped.
-#[inline]
+#[inline(always)]
 fn sweep_down(row: &mut [u8], above: &[u8], mask: &[u8], cap: u8) {
     for ((g, &a), &m) in row.iter_mut().zip(above).zip(mask) {
         *g = a.saturating_add(1).min(cap) & inactive(m);
@@ -582,13 +650,13 @@ fn sweep_down(row: &mut [u8], above: &[u8], mask: &[u8], cap: u8) {
 
 /// 0xFF for an inactive mask pixel, 0 for an active one: a select written as a bit mask so that
 /// the sweeps vectorise.
-#[inline]
+#[inline(always)]
 fn inactive(m: u8) -> u8 {
     u8::from(m != 0).wrapping_sub(1)
 }
 
 /// One row of the upward sweep: the nearer of the downward distance and one more than below.
-#[inline]
+#[inline(always)]
 fn sweep_up(row: &mut [u8], below: &[u8]) {
     for (g, &b) in row.iter_mut().zip(below) {
         *g = (*g).min(b.saturating_add(1));
@@ -598,13 +666,16 @@ fn sweep_up(row: &mut [u8], below: &[u8]) {
 /// Squared distances of N pixels: min over offsets k in −window..=window of row[x + k] + k²,
 /// where `seg` starts `window` pixels before the block. Stops once k² reaches the block's
 /// current maximum, since no farther candidate can then improve any pixel.
-#[inline]
+#[inline(always)]
 fn window_min<T: Lane, const N: usize>(seg: &[T], window: usize) -> [T; N] {
     let mut acc = [T::default(); N];
     acc.copy_from_slice(&seg[window..window + N]);
     for k in 1..=window {
         let kk = T::from_small(k * k);
-        if acc.iter().fold(T::default(), |m, &a| m.max(a)) <= kk {
+        // The test costs about as much as an offset, so it runs at every other one: the offsets
+        // it would have skipped leave every pixel as it is (their candidates are at least k²,
+        // already no better than any pixel's current value).
+        if k % 2 == 0 && acc.iter().fold(T::default(), |m, &a| m.max(a)) <= kk {
             break;
         }
         let left = &seg[window - k..window - k + N];
@@ -897,6 +968,60 @@ mod tests {
                     (v - want).abs() < 1e-5,
                     "{w}x{h} tau {tau} at {k}: {v} vs {want} (D {dk})"
                 );
+            }
+        }
+    }
+
+    /// The AVX2 build and the SSE2 build give the same values bit for bit, in byte lanes (τ ≤ 14)
+    /// and halfword lanes, on sparse masks (mostly capped blocks) and dense ones.
+    #[test]
+    fn vector_widths_build_the_same_field() {
+        for (i, &(w, h, density, tau)) in [
+            (434usize, 141usize, 0.002, 10.0f32),
+            (97, 61, 0.05, 10.0),
+            (130, 77, 0.0005, 14.5),
+            (101, 83, 0.01, 3.2),
+            (90, 70, 0.003, 22.0),
+            (65, 9, 0.3, 10.0),
+        ]
+        .iter()
+        .enumerate()
+        {
+            let mask = random_mask(w, h, density, 300 + i as u64);
+            let window = tau.floor() as usize;
+            let run = |wide: bool| {
+                let mut s = Scratch::default();
+                let mut out = vec![0.0f32; w * h];
+                let bufs = WindowBufs {
+                    col: &mut s.col,
+                    row8: &mut s.row8,
+                    row16: &mut s.row16,
+                    lut: &mut s.lut,
+                };
+                if wide {
+                    #[cfg(target_arch = "x86_64")]
+                    if std::arch::is_x86_feature_detected!("avx2") {
+                        // SAFETY: the CPU has AVX2.
+                        unsafe { windowed_field_avx2(&mask, w, h, tau, window, &mut out, bufs) };
+                        return Some(out);
+                    }
+                    return None;
+                }
+                windowed_field::<32, 16>(&mask, w, h, tau, window, &mut out, bufs);
+                Some(out)
+            };
+            let narrow = run(false).unwrap();
+            let mut d = vec![0.0; w * h];
+            euclidean_distance(&mask, w, h, &mut d).unwrap();
+            for (&v, &dk) in narrow.iter().zip(&d) {
+                assert!((v - rounded_distance(dk, tau)).abs() < 1e-5);
+            }
+            if let Some(wide) = run(true) {
+                let same = narrow
+                    .iter()
+                    .zip(&wide)
+                    .all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(same, "case {i}");
             }
         }
     }
