@@ -30,6 +30,22 @@ pub trait CostMap {
             sums[2 * k + 2] += self.sample(u - du[k], v - dv[k]);
         }
     }
+    /// [`Self::add_star`] for callers compiled for AVX2; a map may override it with a version
+    /// that uses AVX2 and returns the same sums.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[inline(always)]
+    unsafe fn add_star_avx2(
+        &self,
+        u: f32,
+        v: f32,
+        du: &[f32; 6],
+        dv: &[f32; 6],
+        sums: &mut [f32; 13],
+    ) {
+        self.add_star(u, v, du, dv, sums)
+    }
 }
 
 /// Points closer to the camera plane than this are treated as unprojectable (metres).
@@ -257,9 +273,22 @@ impl CostMap for crate::field::FieldLevel {
     fn max_value(&self) -> f32 {
         crate::field::FieldLevel::max_value(self)
     }
-    #[inline]
+    #[inline(always)]
     fn add_star(&self, u: f32, v: f32, du: &[f32; 6], dv: &[f32; 6], sums: &mut [f32; 13]) {
         crate::field::FieldLevel::add_star(self, u, v, du, dv, sums)
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn add_star_avx2(
+        &self,
+        u: f32,
+        v: f32,
+        du: &[f32; 6],
+        dv: &[f32; 6],
+        sums: &mut [f32; 13],
+    ) {
+        // SAFETY: the caller guarantees AVX2.
+        unsafe { crate::field::FieldLevel::add_star_avx2(self, u, v, du, dv, sums) }
     }
 }
 
