@@ -253,12 +253,39 @@ pub fn model_radius(points: &[[f32; 3]], pivot_o: &Vector3<f64>) -> f64 {
 pub fn lm_level(
     map: &impl CostMap,
     pin: &Pinhole,
-    mut pose: Pose,
+    pose: Pose,
     points: &[[f32; 3]],
     pivot_o: &Vector3<f64>,
     radius_m: f64,
     params: &LmParams,
 ) -> (Pose, u32, Option<Observability>) {
+    let run = lm_level_costed(map, pin, pose, points, pivot_o, radius_m, params);
+    (run.pose, run.iterations, run.obs)
+}
+
+/// What [`lm_level_costed`] returns.
+struct LevelRun {
+    pose: Pose,
+    iterations: u32,
+    obs: Option<Observability>,
+    /// The robust cost (sum over `points`) at the starting pose and at `pose`: each is
+    /// `robust_cost` of that pose bit for bit, having been formed by it or by
+    /// `normal_equations`, which add the same per-point values in the same order.
+    start_cost: f64,
+    cost: f64,
+}
+
+/// [`lm_level`], also handing back the robust costs it computed at its first and last pose, so
+/// that [`lm_pyramid`] need not evaluate them again.
+fn lm_level_costed(
+    map: &impl CostMap,
+    pin: &Pinhole,
+    mut pose: Pose,
+    points: &[[f32; 3]],
+    pivot_o: &Vector3<f64>,
+    radius_m: f64,
+    params: &LmParams,
+) -> LevelRun {
     let mut mu = params.mu_initial;
     let mut iterations = 0;
     let pivot_of = |pose: &Pose| {
@@ -266,8 +293,18 @@ pub fn lm_level(
         [c.x as f32, c.y as f32, c.z as f32]
     };
     let (h, mut g, mut cost) = normal_equations(map, pin, &pose, points, pivot_of(&pose), params);
+    let start_cost = cost;
+    // The cost at `pose` as it moves (`cost` itself is only refreshed with the normal equations).
+    let mut cost_at_pose = cost;
     if h.diagonal().max() <= 0.0 {
-        return (pose, 0, None); // no point sees a gradient: nothing to register against
+        // No point sees a gradient: nothing to register against.
+        return LevelRun {
+            pose,
+            iterations: 0,
+            obs: None,
+            start_cost,
+            cost: cost_at_pose,
+        };
     }
     let mut obs = Observability::new(&h, radius_m, params.weak_ratio);
     while iterations < params.max_iterations {
@@ -278,6 +315,7 @@ pub fn lm_level(
         let new_cost = robust_cost(map, pin, &candidate, points, params);
         if new_cost.is_finite() && new_cost < cost {
             pose = candidate;
+            cost_at_pose = new_cost;
             mu = (mu / 10.0).max(1e-9);
             if step.amax() < params.min_step
                 || cost - new_cost < params.min_relative_decrease * cost
@@ -297,7 +335,13 @@ pub fn lm_level(
             }
         }
     }
-    (pose, iterations, Some(obs))
+    LevelRun {
+        pose,
+        iterations,
+        obs: Some(obs),
+        start_cost,
+        cost: cost_at_pose,
+    }
 }
 
 /// The lower-cost of two (cost, pose) pairs; the first on a tie.
@@ -326,6 +370,9 @@ pub fn lm_pyramid<M: CostMap>(
     let mut iterations = 0;
     let radius_m = model_radius(points, pivot_o);
     let mut last_obs = None;
+    // The robust costs at full resolution of the pyramid's start and result, when its last level
+    // (full resolution, every point: the judge's own map and points) computed them.
+    let (mut start_cost, mut out_cost) = (None, None);
     for (i, (map, pin)) in levels.iter().enumerate() {
         let coarseness = levels.len() - 1 - i;
         let stride = (1usize << coarseness).min((points.len() / MIN_COARSE_POINTS).max(1));
@@ -334,10 +381,15 @@ pub fn lm_pyramid<M: CostMap>(
         } else {
             Cow::Owned(points.iter().step_by(stride).copied().collect())
         };
-        let (p, it, obs) = lm_level(*map, pin, pose_out, &thinned, pivot_o, radius_m, params);
-        pose_out = p;
-        iterations += it;
-        last_obs = obs;
+        let run = lm_level_costed(*map, pin, pose_out, &thinned, pivot_o, radius_m, params);
+        if coarseness == 0 && stride == 1 {
+            // Started from `pose` only when it is the only level.
+            start_cost = (levels.len() == 1).then_some(run.start_cost);
+            out_cost = Some(run.cost);
+        }
+        pose_out = run.pose;
+        iterations += run.iterations;
+        last_obs = run.obs;
     }
     // Coarse levels can lock onto the wrong edge: with part of the outline out of view or hidden,
     // their wide basins reach edges the missing part would have ruled out (benches/RESULTS.md,
@@ -347,32 +399,42 @@ pub fn lm_pyramid<M: CostMap>(
     // that drags hidden points from τ to a little less onto edges of the wrong face scores better
     // while the points in view fit worse (box at 1.2 m, 30 % occluded: an 85 mm / 10° jump that
     // lowered Eq. (1) by 2 %); the redescending loss gives points with no event nearby no say.
+    //
+    // Every cost below is `robust_cost` at full resolution over all points; where an LM run at
+    // that level already formed it for the same pose, its value is taken instead (the same bits).
+    let mut final_cost = None;
     if let Some((map, pin)) = levels.last() {
-        let judge = |p: &Pose| {
-            let c = robust_cost(*map, pin, p, points, params);
-            if c.is_nan() {
-                f64::INFINITY
-            } else {
-                c
-            }
+        let judged = |c: f64| if c.is_nan() { f64::INFINITY } else { c };
+        let judge = |p: &Pose, known: Option<f64>| {
+            judged(known.unwrap_or_else(|| robust_cost(*map, pin, p, points, params)))
         };
-        let mut best = (judge(&pose), pose);
+        let fine = (levels.len() > 1)
+            .then(|| lm_level_costed(*map, pin, pose, points, pivot_o, radius_m, params));
+        let start_cost = start_cost.or(fine.as_ref().map(|f| f.start_cost));
+        let mut best = (judge(&pose, start_cost), pose);
+        let mut best_raw = start_cost;
         if pose_out != pose {
-            best = min_cost(best, (judge(&pose_out), pose_out));
+            let c = (judge(&pose_out, out_cost), pose_out);
+            if c.0 < best.0 {
+                best_raw = out_cost;
+            }
+            best = min_cost(best, c);
         }
-        if levels.len() > 1 {
-            let (fine, it, obs) = lm_level(*map, pin, pose, points, pivot_o, radius_m, params);
-            iterations += it;
-            let candidate = (judge(&fine), fine);
+        if let Some(fine) = fine {
+            iterations += fine.iterations;
+            let candidate = (judged(fine.cost), fine.pose);
             if candidate.0 < best.0 {
                 best = candidate;
-                last_obs = obs;
+                best_raw = Some(fine.cost);
+                last_obs = fine.obs;
             }
         }
         pose_out = best.1;
+        final_cost = best_raw;
     }
     let cost = levels.last().map_or(0.0, |(map, pin)| {
-        (robust_cost(*map, pin, &pose_out, points, params) / points.len().max(1) as f64) as f32
+        let c = final_cost.unwrap_or_else(|| robust_cost(*map, pin, &pose_out, points, params));
+        (c / points.len().max(1) as f64) as f32
     });
     let mut held = [Vector6::zeros(); 6];
     let n_held = last_obs.map_or(0, |o| {

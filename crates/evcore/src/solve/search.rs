@@ -88,6 +88,42 @@ pub fn search_step<M: CostMap>(
     deltas: &[f64; 6],
     min_t: f32,
 ) -> SearchOutcome {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        return unsafe { search_step_avx2(map, pin, pose, points, pivot_o, deltas, min_t) };
+    }
+    search_step_in::<M, false>(map, pin, pose, points, pivot_o, deltas, min_t)
+}
+
+/// [`search_step`] compiled for AVX2. The same operations in the same order (Rust never fuses a
+/// multiply and an add on its own), so the same result bit for bit; the star's 16 lanes of
+/// coordinates, indices and weights take one vector each instead of two to four.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn search_step_avx2<M: CostMap>(
+    map: &M,
+    pin: &Pinhole,
+    pose: &Pose,
+    points: &[[f32; 3]],
+    pivot_o: &Vector3<f64>,
+    deltas: &[f64; 6],
+    min_t: f32,
+) -> SearchOutcome {
+    search_step_in::<M, true>(map, pin, pose, points, pivot_o, deltas, min_t)
+}
+
+/// The body of [`search_step`]; `AVX2` (only in [`search_step_avx2`]) takes the map's AVX2 star.
+#[inline(always)]
+fn search_step_in<M: CostMap, const AVX2: bool>(
+    map: &M,
+    pin: &Pinhole,
+    pose: &Pose,
+    points: &[[f32; 3]],
+    pivot_o: &Vector3<f64>,
+    deltas: &[f64; 6],
+    min_t: f32,
+) -> SearchOutcome {
     let pivot_c = (pose * Point3::from(*pivot_o)).coords;
     let pivot = [pivot_c.x as f32, pivot_c.y as f32, pivot_c.z as f32];
     let rig = Rigid32::from_pose(pose);
@@ -114,7 +150,7 @@ pub fn search_step<M: CostMap>(
         if gated {
             // The point's own 13 values (0 + x is x: the sums come out as in the plain path).
             let mut own = [0.0f32; N_CANDIDATES];
-            map.add_star(u, v, &du, &dv, &mut own);
+            star::<M, AVX2>(map, u, v, &du, &dv, &mut own);
             for i in 0..N_CANDIDATES {
                 sums[i] += own[i];
                 let g = f64::from(own[0] - own[i]);
@@ -123,7 +159,7 @@ pub fn search_step<M: CostMap>(
             }
             n_projected += 1;
         } else {
-            map.add_star(u, v, &du, &dv, &mut sums);
+            star::<M, AVX2>(map, u, v, &du, &dv, &mut sums);
         }
     }
     let n = points.len().max(1) as f32;
@@ -152,6 +188,25 @@ pub fn search_step<M: CostMap>(
         best,
         t,
     }
+}
+
+/// The map's star: its AVX2 version where [`search_step_avx2`] asks for it.
+#[inline(always)]
+fn star<M: CostMap, const AVX2: bool>(
+    map: &M,
+    u: f32,
+    v: f32,
+    du: &[f32; 6],
+    dv: &[f32; 6],
+    sums: &mut [f32; 13],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 {
+        // SAFETY: AVX2 is only set by `search_step_avx2`, which runs on CPUs with AVX2.
+        unsafe { map.add_star_avx2(u, v, du, dv, sums) };
+        return;
+    }
+    map.add_star(u, v, du, dv, sums);
 }
 
 /// One-sample t statistic of n values from their sum and sum of squares: mean / (std / √n), with
