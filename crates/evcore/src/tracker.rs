@@ -38,7 +38,7 @@ use crate::solve::lm::{lm_pyramid, LmParams, LmReport};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
 use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
-use crate::templates::{acquisition_score, camera_direction_o, TemplateBank};
+use crate::templates::{acquisition_score, camera_direction_o, TemplateBank, ACQUISITION_MARGIN};
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::sync::atomic::{fence, AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -260,6 +260,10 @@ const AFTER_GAP_US: i64 = 100_000;
 /// steps in between keep tracking locally, so a pose that is right again is trusted again at once
 /// (the global pass alone only accepts a pose it found itself).
 const GLOBAL_PASS_EVERY_US: i64 = 10_000;
+
+/// Global-search candidates scoring at least this are refined again with S* of their nearest view
+/// (see `Solver::refine`).
+const RESCORE_ABOVE: f32 = 0.25;
 
 /// Global passes in a row that must find a candidate (the later ones refining it from where the
 /// earlier left it) before it is trusted.
@@ -977,6 +981,13 @@ impl Solver {
                 let due = self
                     .last_global_us
                     .is_none_or(|t| t_us - t >= GLOBAL_PASS_EVERY_US || t_us < t);
+                if !self.had_pose && self.last_global_us == Some(t_us) {
+                    // No event since the last pass: the same search would find the same, and a
+                    // candidate is only confirmed by a pass over newer events.
+                    self.last.seq += 1;
+                    self.publish();
+                    return self.last;
+                }
                 if due || !self.had_pose {
                     self.last_global_us = Some(t_us);
                     return self.reacquire(&bank);
@@ -1255,28 +1266,62 @@ impl Solver {
             );
             seeds.push((p, Some(v), c));
         }
-        let pyramid: Vec<_> = (0..levels)
+        Some(
+            seeds
+                .into_iter()
+                .filter_map(|(seed, view, chamfer)| self.refine(bank, seed, view, chamfer))
+                .collect(),
+        )
+    }
+
+    /// Refine `seed` by LM on the last full-image field with S* of `view` (None: the current S*)
+    /// and weigh the events' evidence for the result (None: no valid pose).
+    fn refine(
+        &self,
+        bank: &TemplateBank,
+        seed: Pose,
+        view: Option<usize>,
+        chamfer: f32,
+    ) -> Option<Candidate> {
+        let pyramid: Vec<_> = (0..self.config.field.levels)
             .rev()
             .map(|l| (self.field.level(l), self.pins[l as usize]))
             .collect();
-        let mut out = Vec::with_capacity(seeds.len());
-        for (seed, view, chamfer) in seeds {
-            let points = view.map_or(&self.points, |v| &bank.views[v].points_o);
-            let pivot = centroid(points);
-            let pose = lm_pyramid(&pyramid, seed, points, &pivot, &self.config.lm).pose;
-            if check_pose(&pose).is_err() {
-                continue;
-            }
-            let evidence = self.evidence_of(&pose, points, None, true);
-            out.push(Candidate {
-                seed,
-                view,
-                chamfer,
-                pose,
-                evidence,
-            });
+        let points = view.map_or(&self.points, |v| &bank.views[v].points_o);
+        let pivot = centroid(points);
+        let pose = lm_pyramid(&pyramid, seed, points, &pivot, &self.config.lm).pose;
+        check_pose(&pose).ok()?;
+        let evidence = self.evidence_of(&pose, points, None, true);
+        let first = Candidate {
+            seed,
+            view,
+            chamfer,
+            pose,
+            evidence,
+        };
+        // LM may have turned the pose away from the view it started from: a promising candidate
+        // is refined again at full resolution with S* of the view nearest to where it went (the
+        // edges, print included, seen from there) and scored on that; a view 27° off leaves part
+        // of the true edges out and the truth explaining too little of the events.
+        let (near, _) = bank.nearest_view(&pose);
+        if view.is_none() || view == Some(near) || acquisition_score(&evidence) < RESCORE_ABOVE {
+            return Some(first);
         }
-        Some(out)
+        let points = &bank.views[near].points_o;
+        let pivot = centroid(points);
+        let finest = &pyramid[pyramid.len() - 1..];
+        let pose = lm_pyramid(finest, pose, points, &pivot, &self.config.lm).pose;
+        if check_pose(&pose).is_err() {
+            return Some(first);
+        }
+        let evidence = self.evidence_of(&pose, points, None, true);
+        Some(Candidate {
+            seed,
+            view: Some(near),
+            chamfer,
+            pose,
+            evidence,
+        })
     }
 
     /// One global search over the whole image (see [`crate::templates`]): the bank's best
@@ -1288,18 +1333,51 @@ impl Solver {
         let n_events = self.out.ingested.load(Ordering::Relaxed);
         let pending = self.pending.take();
         let extra: Vec<(Pose, Option<usize>)> = pending.iter().map(|p| (p.0, p.1)).collect();
-        let best = self
+        let mut scored: Vec<(f32, Pose, Option<usize>)> = self
             .global_candidates(bank, t_us, &extra)
             .unwrap_or_default()
             .into_iter()
             .map(|c| (acquisition_score(&c.evidence), c.pose, c.view))
-            .fold(None, |b: Option<(f32, Pose, Option<usize>)>, c| {
-                if b.as_ref().is_none_or(|b| c.0 > b.0) {
-                    Some(c)
-                } else {
-                    b
+            .collect();
+        let top = |scored: &[(f32, Pose, Option<usize>)]| {
+            scored
+                .iter()
+                .copied()
+                .fold(None, |b: Option<(f32, Pose, Option<usize>)>, c| {
+                    if b.as_ref().is_none_or(|b| c.0 > b.0) {
+                        Some(c)
+                    } else {
+                        b
+                    }
+                })
+        };
+        // A candidate good enough to take has look-alikes the sweep may have missed: the object
+        // turned half a turn about one of its axes through its centre (a box's outline is the same
+        // then; only its print tells). They are refined and scored too, so that the margin below
+        // weighs the truth against them whichever of them the sweep found.
+        if let Some((_, pose, _)) = top(&scored).filter(|b| b.0 >= self.config.reacquire_above) {
+            let c = bank.centre_o();
+            for axis in [Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()] {
+                let turn = UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI);
+                let about = Pose::from_parts(Translation3::from(c - turn * c), turn);
+                let seed = pose * about;
+                let view = bank.nearest_view(&seed).0;
+                if let Some(k) = self.refine(bank, seed, Some(view), f32::NAN) {
+                    scored.push((acquisition_score(&k.evidence), k.pose, k.view));
                 }
-            });
+            }
+        }
+        let best = top(&scored);
+        // The best must stand out from every fit elsewhere: an outline that two poses explain
+        // alike (a box turned 180°) is not evidence for either.
+        let rival = best.map_or(0.0, |b| {
+            scored
+                .iter()
+                .filter(|c| !same_place(&c.1, &b.1))
+                .map(|c| c.0)
+                .fold(0.0, f32::max)
+        });
+        let best = best.filter(|b| b.0 >= ACQUISITION_MARGIN * rival);
         self.last.seq += 1;
         self.last.t_us = t_us;
         self.last.pushed_ns = pushed_ns;
@@ -1473,6 +1551,7 @@ impl TrackerCore {
         s.searching = true;
         s.had_pose = false;
         s.pending = None;
+        s.last_global_us = None;
         s.publish();
     }
 
