@@ -261,6 +261,9 @@ const AFTER_GAP_US: i64 = 100_000;
 /// (the global pass alone only accepts a pose it found itself).
 const GLOBAL_PASS_EVERY_US: i64 = 10_000;
 
+/// The global sweep runs on a field level at most this wide (pixels; see `Solver::sweep_level`).
+const SWEEP_MAX_WIDTH: usize = 200;
+
 /// Global-search candidates scoring at least this are refined again with S* of their nearest view
 /// (see `Solver::refine`).
 const RESCORE_ABOVE: f32 = 0.25;
@@ -810,6 +813,9 @@ pub struct Solver {
     had_pose: bool,
     /// Event time (µs) of the last global pass.
     last_global_us: Option<i64>,
+    /// The sweep's field when the coarsest level is wider than `SWEEP_MAX_WIDTH` (one level,
+    /// OR-pooled from the coarsest; built lazily).
+    sweep_field: Option<DistanceField>,
     /// A global-search candidate that passed `reacquire_above` once, waiting for the next pass to
     /// find it again (refined from where it was) before it is trusted: (pose, view, passes).
     pending: Option<(Pose, Option<usize>, u32)>,
@@ -907,6 +913,7 @@ impl Solver {
             had_pose: true,
             last_global_us: None,
             pending: None,
+            sweep_field: None,
             claim: Claim::default(),
         };
         solver.publish();
@@ -1250,8 +1257,15 @@ impl Solver {
             .keep_fresh(&mut self.mask, full, t_us - self.config.search_fresh_us);
         self.field.build(&self.mask, full, levels).ok()?;
         let coarsest = levels - 1;
-        let mut seeds: Vec<(Pose, Option<usize>, f32)> = bank
-            .search(self.field.level(coarsest), &self.pins[coarsest as usize])
+        let found = match self.sweep_level(coarsest) {
+            Some(level) => {
+                let pin = Pinhole::at_level(&self.rect, level);
+                let field = self.sweep_field.as_ref()?;
+                bank.search(field.level(0), &pin)
+            }
+            None => bank.search(self.field.level(coarsest), &self.pins[coarsest as usize]),
+        };
+        let mut seeds: Vec<(Pose, Option<usize>, f32)> = found
             .into_iter()
             .map(|(pose, view, cost)| (pose, Some(view), cost))
             .collect();
@@ -1272,6 +1286,42 @@ impl Solver {
                 .filter_map(|(seed, view, chamfer)| self.refine(bank, seed, view, chamfer))
                 .collect(),
         )
+    }
+
+    /// When the coarsest level of the full-image field is wider than `SWEEP_MAX_WIDTH` pixels,
+    /// OR-pool its active pixels 2×2 (repeatedly) into `sweep_field` and return the pyramid level
+    /// that corresponds to; None: the sweep runs on the coarsest level itself. The sweep's
+    /// tolerance to a template's misplacement is a few field pixels, so it must see the object at
+    /// about the same size in pixels whatever the sensor (at 1280×720 the coarsest level, 320 px
+    /// wide, left the drill and the box unfound where at 640×360 they were found).
+    fn sweep_level(&mut self, coarsest: u32) -> Option<u32> {
+        let src = self.field.level(coarsest);
+        let (mut w, mut h) = (src.roi.width as usize, src.roi.height as usize);
+        if w <= SWEEP_MAX_WIDTH {
+            return None;
+        }
+        let mut mask: Vec<u8> = src.value.iter().map(|&f| u8::from(f == 0.0)).collect();
+        let mut level = coarsest;
+        while w > SWEEP_MAX_WIDTH {
+            let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+            let mut pooled = vec![0u8; w2 * h2];
+            for y in 0..h {
+                for x in 0..w {
+                    pooled[(y / 2) * w2 + x / 2] |= mask[y * w + x];
+                }
+            }
+            (mask, w, h, level) = (pooled, w2, h2, level + 1);
+        }
+        let params = FieldParams {
+            levels: 1,
+            ..self.config.field
+        };
+        let field = match &mut self.sweep_field {
+            Some(f) => f,
+            none => none.insert(DistanceField::new(params).ok()?),
+        };
+        field.build(&mask, Roi::full(w as u32, h as u32), 1).ok()?;
+        Some(level)
     }
 
     /// Refine `seed` by LM on the last full-image field with S* of `view` (None: the current S*)
