@@ -38,7 +38,7 @@ use crate::solve::lm::{lm_pyramid, LmParams, LmReport};
 use crate::solve::search::{axis_steps, search_step};
 use crate::solve::{Schedule, SolverMode, StepKind};
 use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
-use crate::templates::{camera_direction_o, TemplateBank};
+use crate::templates::{acquisition_score, camera_direction_o, TemplateBank, ACQUISITION_MARGIN};
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::sync::atomic::{fence, AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -75,9 +75,11 @@ pub struct TrackerConfig {
     pub relock_above: f32,
     /// While lost, the global search only sees pixels whose block fired within this time (µs).
     pub search_fresh_us: i64,
-    /// A candidate of the global search is accepted only with at least this acquisition
-    /// confidence: higher than `relock_above`, as a sweep over thousands of templates finds
-    /// partial fits that a tracked pose, which moves continuously, never jumps to.
+    /// A candidate of the global search is accepted only with at least this acquisition score
+    /// ([`crate::templates::acquisition_score`]) in `CONFIRM_PASSES` passes in a row: a sweep over
+    /// thousands of templates finds partial fits that a tracked pose, which moves continuously,
+    /// never jumps to. True poses of the drill and the textured box (sim, Z = 0.7 m) score
+    /// 0.56–0.62, the sweep's wrong fits ≤ 0.41.
     pub reacquire_above: f32,
     /// An update that moves the pose further than this (metres or radians) is rejected as a jump.
     pub max_jump: f64,
@@ -114,7 +116,7 @@ impl Default for TrackerConfig {
             relock_above: RELOCK_ABOVE,
             lost_hold_us: 15_000,
             search_fresh_us: 50_000,
-            reacquire_above: 0.7,
+            reacquire_above: 0.5,
             max_jump: 0.25,
             held_axes_o: Vec::new(),
             ingest_limit: IngestLimit::default(),
@@ -281,6 +283,24 @@ const QUIET: f32 = 0.04;
 /// drill, measured cost: 0.35 → 0.25 against 0.16 → 0.33 around, flagged lost with confidence 0.40
 /// before this test; benches/RESULTS.md, issue 12 "Round 6").
 const FALLEN: f32 = 0.5;
+
+/// The global sweep runs on a field level at most this wide (pixels; see `Solver::sweep_level`).
+const SWEEP_MAX_WIDTH: usize = 200;
+
+/// Global-search candidates scoring at least this are refined again with S* of their nearest view
+/// (see `Solver::refine`).
+const RESCORE_ABOVE: f32 = 0.25;
+
+/// Global passes in a row that must find a candidate (the later ones refining it from where the
+/// earlier left it) before it is trusted.
+const CONFIRM_PASSES: u32 = 2;
+
+/// Whether two candidates of successive global passes are the same hypothesis: within 2 cm and 5°
+/// (the object moves little between passes; a different fit sits elsewhere or turned).
+fn same_place(a: &Pose, b: &Pose) -> bool {
+    let (dt, dr) = crate::se3::distance(a, b);
+    dt < 0.02 && dr < 5f64.to_radians()
+}
 
 /// Fewer visible model points than this and the pose is not updated (one per degree of freedom).
 const MIN_VISIBLE_POINTS: usize = 6;
@@ -836,6 +856,12 @@ pub struct Solver {
     had_pose: bool,
     /// Event time (µs) of the last global pass.
     last_global_us: Option<i64>,
+    /// The sweep's field when the coarsest level is wider than `SWEEP_MAX_WIDTH` (one level,
+    /// OR-pooled from the coarsest; built lazily).
+    sweep_field: Option<DistanceField>,
+    /// A global-search candidate that passed `reacquire_above` once, waiting for the next pass to
+    /// find it again (refined from where it was) before it is trusted: (pose, view, passes).
+    pending: Option<(Pose, Option<usize>, u32)>,
     /// The batches this update took in, claimed at its start.
     claim: Claim,
     /// Scratch for [`Solver::activity_at`]: projected model points, and which cells of the
@@ -866,6 +892,20 @@ enum LostBy {
     /// Only the events stopped (see [`Solver::blind`]); `still`: the model was still in the image
     /// when they did.
     Dropout { still: bool },
+}
+
+/// A candidate of a global search (diagnostics and the acceptance test).
+#[derive(Debug, Clone, Copy)]
+pub struct Candidate {
+    /// Where the sweep (or the caller) put it before LM.
+    pub seed: Pose,
+    /// The bank view whose S* it uses (None: the current S*).
+    pub view: Option<usize>,
+    /// The sweep's chamfer score (mean coarse field value; NaN when not from the sweep).
+    pub chamfer: f32,
+    /// After LM.
+    pub pose: Pose,
+    pub evidence: Evidence,
 }
 
 fn check_pose(pose: &Pose) -> Result<()> {
@@ -943,6 +983,8 @@ impl Solver {
             evidence: Evidence::default(),
             had_pose: true,
             last_global_us: None,
+            pending: None,
+            sweep_field: None,
             claim: Claim::default(),
             uv: Vec::new(),
             near_model: Vec::new(),
@@ -1005,6 +1047,7 @@ impl Solver {
         self.lost_by = LostBy::Evidence;
         self.held_still = false;
         self.active_at = None;
+        self.pending = None;
         self.motion.reset();
         self.schedule.restart();
         self.publish();
@@ -1034,6 +1077,13 @@ impl Solver {
                 let due = self
                     .last_global_us
                     .is_none_or(|t| t_us - t >= GLOBAL_PASS_EVERY_US || t_us < t);
+                if !self.had_pose && self.last_global_us == Some(t_us) {
+                    // No event since the last pass: the same search would find the same, and a
+                    // candidate is only confirmed by a pass over newer events.
+                    self.last.seq += 1;
+                    self.publish();
+                    return self.last;
+                }
                 if due || !self.had_pose {
                     self.last_global_us = Some(t_us);
                     return self.reacquire(&bank);
@@ -1411,13 +1461,15 @@ impl Solver {
         evidence(self.field.level(0), &pin, &rig, points, &query)
     }
 
-    /// One global search over the whole image (see [`crate::templates`]): the bank's best
-    /// candidates and the current pose are refined by LM on a full-image field, and the most
-    /// confident is taken if it passes `reacquire_above`; otherwise the tracker stays lost.
-    fn reacquire(&mut self, bank: &TemplateBank) -> Estimate {
-        let started = Instant::now();
-        let (t_us, pushed_ns) = self.newest();
-        let n_events = self.out.ingested.load(Ordering::Relaxed);
+    /// Build a field over the whole image from the pixels that fired within `search_fresh_us` of
+    /// `t_us`, sweep `bank` over it and refine its best candidates, the current pose and `extra`
+    /// by LM; every refined candidate with its evidence (None: the field could not be built).
+    fn global_candidates(
+        &mut self,
+        bank: &TemplateBank,
+        t_us: i64,
+        extra: &[(Pose, Option<usize>)],
+    ) -> Option<Vec<Candidate>> {
         let full = Roi::full(self.rect.width, self.rect.height);
         let levels = self.config.field.levels;
         self.mask.resize(full.area(), 0);
@@ -1426,41 +1478,195 @@ impl Solver {
         // and accumulates background noise, both of which would draw the search.
         self.recency
             .keep_fresh(&mut self.mask, full, t_us - self.config.search_fresh_us);
-        let mut best: Option<(f32, Pose, Option<usize>)> = None;
-        if self.field.build(&self.mask, full, levels).is_ok() {
-            let coarsest = levels - 1;
-            let mut candidates: Vec<(Pose, Option<usize>)> = bank
-                .search(self.field.level(coarsest), &self.pins[coarsest as usize])
+        self.field.build(&self.mask, full, levels).ok()?;
+        let coarsest = levels - 1;
+        let found = match self.sweep_level(coarsest) {
+            Some(level) => {
+                let pin = Pinhole::at_level(&self.rect, level);
+                let field = self.sweep_field.as_ref()?;
+                bank.search(field.level(0), &pin)
+            }
+            None => bank.search(self.field.level(coarsest), &self.pins[coarsest as usize]),
+        };
+        let mut seeds: Vec<(Pose, Option<usize>, f32)> = found
+            .into_iter()
+            .map(|(pose, view, cost)| (pose, Some(view), cost))
+            .collect();
+        seeds.push((self.last.pose, None, f32::NAN));
+        for &(p, v) in extra {
+            let v = v.unwrap_or_else(|| bank.nearest_view(&p).0);
+            let c = bank.chamfer_at(
+                self.field.level(coarsest),
+                &self.pins[coarsest as usize],
+                &p,
+                v,
+            );
+            seeds.push((p, Some(v), c));
+        }
+        Some(
+            seeds
                 .into_iter()
-                .map(|(pose, view, _)| (pose, Some(view)))
-                .collect();
-            candidates.push((self.last.pose, None));
-            let pyramid: Vec<_> = (0..levels)
-                .rev()
-                .map(|l| (self.field.level(l), self.pins[l as usize]))
-                .collect();
-            for (pose, view) in candidates {
-                let points = view.map_or(&self.points, |v| &bank.views[v].points_o);
-                let pivot = centroid(points);
-                let refined = lm_pyramid(&pyramid, pose, points, &pivot, &self.config.lm).pose;
-                if check_pose(&refined).is_err() {
-                    continue;
+                .filter_map(|(seed, view, chamfer)| self.refine(bank, seed, view, chamfer))
+                .collect(),
+        )
+    }
+
+    /// When the coarsest level of the full-image field is wider than `SWEEP_MAX_WIDTH` pixels,
+    /// OR-pool its active pixels 2×2 (repeatedly) into `sweep_field` and return the pyramid level
+    /// that corresponds to; None: the sweep runs on the coarsest level itself. The sweep's
+    /// tolerance to a template's misplacement is a few field pixels, so it must see the object at
+    /// about the same size in pixels whatever the sensor (at 1280×720 the coarsest level, 320 px
+    /// wide, left the drill and the box unfound where at 640×360 they were found).
+    fn sweep_level(&mut self, coarsest: u32) -> Option<u32> {
+        let src = self.field.level(coarsest);
+        let (mut w, mut h) = (src.roi.width as usize, src.roi.height as usize);
+        if w <= SWEEP_MAX_WIDTH {
+            return None;
+        }
+        let mut mask: Vec<u8> = src.value.iter().map(|&f| u8::from(f == 0.0)).collect();
+        let mut level = coarsest;
+        while w > SWEEP_MAX_WIDTH {
+            let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+            let mut pooled = vec![0u8; w2 * h2];
+            for y in 0..h {
+                for x in 0..w {
+                    pooled[(y / 2) * w2 + x / 2] |= mask[y * w + x];
                 }
-                let c = self
-                    .evidence_of(&refined, points, None, true)
-                    .acquisition_confidence();
-                if best.as_ref().is_none_or(|b| c > b.0) {
-                    best = Some((c, refined, view));
+            }
+            (mask, w, h, level) = (pooled, w2, h2, level + 1);
+        }
+        let params = FieldParams {
+            levels: 1,
+            ..self.config.field
+        };
+        let field = match &mut self.sweep_field {
+            Some(f) => f,
+            none => none.insert(DistanceField::new(params).ok()?),
+        };
+        field.build(&mask, Roi::full(w as u32, h as u32), 1).ok()?;
+        Some(level)
+    }
+
+    /// Refine `seed` by LM on the last full-image field with S* of `view` (None: the current S*)
+    /// and weigh the events' evidence for the result (None: no valid pose).
+    fn refine(
+        &self,
+        bank: &TemplateBank,
+        seed: Pose,
+        view: Option<usize>,
+        chamfer: f32,
+    ) -> Option<Candidate> {
+        let pyramid: Vec<_> = (0..self.config.field.levels)
+            .rev()
+            .map(|l| (self.field.level(l), self.pins[l as usize]))
+            .collect();
+        let points = view.map_or(&self.points, |v| &bank.views[v].points_o);
+        let pivot = centroid(points);
+        let pose = lm_pyramid(&pyramid, seed, points, &pivot, &self.config.lm).pose;
+        check_pose(&pose).ok()?;
+        let evidence = self.evidence_of(&pose, points, None, true);
+        let first = Candidate {
+            seed,
+            view,
+            chamfer,
+            pose,
+            evidence,
+        };
+        // LM may have turned the pose away from the view it started from: a promising candidate
+        // is refined again at full resolution with S* of the view nearest to where it went (the
+        // edges, print included, seen from there) and scored on that; a view 27° off leaves part
+        // of the true edges out and the truth explaining too little of the events.
+        let (near, _) = bank.nearest_view(&pose);
+        if view.is_none() || view == Some(near) || acquisition_score(&evidence) < RESCORE_ABOVE {
+            return Some(first);
+        }
+        let points = &bank.views[near].points_o;
+        let pivot = centroid(points);
+        let finest = &pyramid[pyramid.len() - 1..];
+        let pose = lm_pyramid(finest, pose, points, &pivot, &self.config.lm).pose;
+        if check_pose(&pose).is_err() {
+            return Some(first);
+        }
+        let evidence = self.evidence_of(&pose, points, None, true);
+        Some(Candidate {
+            seed,
+            view: Some(near),
+            chamfer,
+            pose,
+            evidence,
+        })
+    }
+
+    /// One global search over the whole image (see [`crate::templates`]): the bank's best
+    /// candidates and the current pose are refined by LM on a full-image field, and the most
+    /// confident is taken if it passes `reacquire_above`; otherwise the tracker stays lost.
+    fn reacquire(&mut self, bank: &TemplateBank) -> Estimate {
+        let started = Instant::now();
+        let (t_us, pushed_ns) = self.newest();
+        let n_events = self.out.ingested.load(Ordering::Relaxed);
+        let pending = self.pending.take();
+        let extra: Vec<(Pose, Option<usize>)> = pending.iter().map(|p| (p.0, p.1)).collect();
+        let mut scored: Vec<(f32, Pose, Option<usize>)> = self
+            .global_candidates(bank, t_us, &extra)
+            .unwrap_or_default()
+            .into_iter()
+            .map(|c| (acquisition_score(&c.evidence), c.pose, c.view))
+            .collect();
+        let top = |scored: &[(f32, Pose, Option<usize>)]| {
+            scored
+                .iter()
+                .copied()
+                .fold(None, |b: Option<(f32, Pose, Option<usize>)>, c| {
+                    if b.as_ref().is_none_or(|b| c.0 > b.0) {
+                        Some(c)
+                    } else {
+                        b
+                    }
+                })
+        };
+        // A candidate good enough to take has look-alikes the sweep may have missed: the object
+        // turned half a turn about one of its axes through its centre (a box's outline is the same
+        // then; only its print tells). They are refined and scored too, so that the margin below
+        // weighs the truth against them whichever of them the sweep found.
+        if let Some((_, pose, _)) = top(&scored).filter(|b| b.0 >= self.config.reacquire_above) {
+            let c = bank.centre_o();
+            for axis in [Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()] {
+                let turn = UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI);
+                let about = Pose::from_parts(Translation3::from(c - turn * c), turn);
+                let seed = pose * about;
+                let view = bank.nearest_view(&seed).0;
+                if let Some(k) = self.refine(bank, seed, Some(view), f32::NAN) {
+                    scored.push((acquisition_score(&k.evidence), k.pose, k.view));
                 }
             }
         }
+        let best = top(&scored);
+        // The best must stand out from every fit elsewhere: an outline that two poses explain
+        // alike (a box turned 180°) is not evidence for either.
+        let rival = best.map_or(0.0, |b| {
+            scored
+                .iter()
+                .filter(|c| !same_place(&c.1, &b.1))
+                .map(|c| c.0)
+                .fold(0.0, f32::max)
+        });
+        let best = best.filter(|b| b.0 >= ACQUISITION_MARGIN * rival);
         self.last.seq += 1;
         self.last.t_us = t_us;
         self.last.pushed_ns = pushed_ns;
         self.last.n_events = n_events;
         self.last.step = StepKind::Lm;
-        match best {
-            Some((c, pose, view)) if c >= self.config.reacquire_above => {
+        self.last.confidence = best.map_or(0.0, |b| b.0);
+        self.last.lost = true;
+        if let Some((c, pose, view)) = best.filter(|b| b.0 >= self.config.reacquire_above) {
+            // Trusted only once a second pass finds it again where the first left it (tracked by
+            // LM from there on the new events): a fit that one pass's events happen to allow, on
+            // noise or on part of the edges, rarely survives the next.
+            let passes = match pending {
+                Some((p, _, n)) if same_place(&p, &pose) => n + 1,
+                _ => 1,
+            };
+            if passes >= CONFIRM_PASSES {
                 if let Some(v) = view {
                     self.use_view(bank, v);
                 }
@@ -1474,10 +1680,8 @@ impl Solver {
                 self.held_still = false;
                 self.motion.reset();
                 self.schedule.restart();
-            }
-            other => {
-                self.last.confidence = other.map_or(0.0, |b| b.0);
-                self.last.lost = true;
+            } else {
+                self.pending = Some((pose, view, passes));
             }
         }
         self.publish();
@@ -1595,6 +1799,24 @@ impl TrackerCore {
         Ok(core)
     }
 
+    /// Diagnostics: one global search on the current events without changing the tracker's state
+    /// (beyond its field), `extra` poses refined and scored alongside the sweep's candidates.
+    /// Empty without a template bank.
+    pub fn global_candidates(&mut self, extra: &[Pose]) -> Vec<Candidate> {
+        let s = &mut self.solver;
+        let Some(bank) = s.bank.clone() else {
+            return Vec::new();
+        };
+        let t_us = s.newest().0;
+        let extra: Vec<_> = extra.iter().map(|&p| (p, None)).collect();
+        s.global_candidates(&bank, t_us, &extra).unwrap_or_default()
+    }
+
+    /// The template bank's model centre (object frame), if there is a bank.
+    pub fn bank_centre_o(&self) -> Option<Vector3<f64>> {
+        self.solver.bank.as_ref().map(|b| b.centre_o())
+    }
+
     /// Give up the current pose: the estimate reads lost and, with a template bank, the next
     /// updates search the whole image (e.g. when the caller knows the object was moved).
     pub fn start_search(&mut self) {
@@ -1603,6 +1825,8 @@ impl TrackerCore {
         s.last.confidence = 0.0;
         s.searching = true;
         s.had_pose = false;
+        s.pending = None;
+        s.last_global_us = None;
         s.publish();
     }
 

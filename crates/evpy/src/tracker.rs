@@ -470,6 +470,53 @@ impl PyTracker {
         Ok(d)
     }
 
+    /// Diagnostics (synchronous use): one global search on the current events, as the tracker
+    /// runs it while lost, without changing its state. `extra` (N, 4, 4) poses are refined and
+    /// scored alongside. A list of dicts: `seed` and `T_c_o` (before / after LM), `view` (bank
+    /// view or None), `chamfer`, `confidence`, `acquisition` and the evidence parts.
+    #[pyo3(signature = (extra=None))]
+    fn _global_candidates<'py>(
+        &self,
+        py: Python<'py>,
+        extra: Option<numpy::PyReadonlyArray3<'_, f64>>,
+    ) -> PyResult<Vec<Bound<'py, pyo3::types::PyDict>>> {
+        let centre = self.with_core(py, |core| core.bank_centre_o())?;
+        let extra = match extra {
+            Some(a) => crate::pose::poses_arg(&a)?,
+            None => Vec::new(),
+        };
+        let found = self.with_core(py, |core| core.global_candidates(&extra))?;
+        found
+            .into_iter()
+            .map(|c| {
+                let d = pyo3::types::PyDict::new(py);
+                d.set_item("seed", matrix_to_py(py, &pose_to_matrix(&c.seed)))?;
+                d.set_item("T_c_o", matrix_to_py(py, &pose_to_matrix(&c.pose)))?;
+                d.set_item("view", c.view)?;
+                d.set_item("chamfer", c.chamfer)?;
+                if let Some(c0) = centre {
+                    d.set_item(
+                        "centre_c",
+                        (c.seed * nalgebra::Point3::from(c0))
+                            .coords
+                            .as_slice()
+                            .to_vec(),
+                    )?;
+                }
+                let e = c.evidence;
+                d.set_item("confidence", e.confidence())?;
+                d.set_item("acquisition", evcore::templates::acquisition_score(&e))?;
+                d.set_item("support", e.support)?;
+                d.set_item("chance", e.chance)?;
+                d.set_item("support_tight", e.support_tight)?;
+                d.set_item("chance_tight", e.chance_tight)?;
+                d.set_item("visible", e.visible)?;
+                d.set_item("explained", e.explained)?;
+                Ok(d)
+            })
+            .collect()
+    }
+
     /// Live counters (a dict): step counts and seconds per kind, events offered / ingested /
     /// dropped (thinned under overload), rejected jumps. Lock-free.
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {

@@ -16,7 +16,7 @@ def run(args: argparse.Namespace) -> int:
     from evservo.viewer import open_viewer
 
     camera = load_camera_file(args.camera) if args.camera else None
-    init = parse_pose(args.init_pose) if args.init_pose else None
+    init = "search" if args.init_pose == "search" else parse_pose(args.init_pose) if args.init_pose else None
     solvers = SOLVERS if args.compare else (args.solver,)
     # Checked (and cleared of an earlier run's files) before any tracking starts.
     outs = {solver: prepare_out_dir(Path(args.out) / solver if args.compare else args.out, stale=OUTPUTS)
@@ -84,8 +84,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--model", help="object: built-in name or mesh path (default: the recording's)")
     t.add_argument(
         "--init-pose",
-        help="initial T_c_o as x,y,z,qx,qy,qz,qw (default: the recording's ground truth, else none: the tracker "
-        "starts lost and searches for the object)",
+        help="initial T_c_o as x,y,z,qx,qy,qz,qw, or 'search': start lost and search the image for the object "
+        "even when the recording has ground truth (default: the recording's ground truth, else search)",
     )
     t.add_argument("--topic", help="the event topic of a ROS bag holding several")
     t.add_argument("--camera", help="camera file (YAML/JSON; evservo's layout, OpenCV YAML or ROS camera_info)")

@@ -37,7 +37,7 @@ OUTPUTS = ("summary.json", "poses.csv", "overlay.png", "error.png")
 
 
 def track_file(
-    path: str | Path, solver: str, out: Path, *, model: str | None = None, init_pose: np.ndarray | None = None,
+    path: str | Path, solver: str, out: Path, *, model: str | None = None, init_pose: np.ndarray | str | None = None,
     camera: _evcore.Camera | None = None, frontend: str = "scarf", batch_us: int = 1000,
     max_seconds: float | None = None, progress: bool = True, notes: list[str] | None = None,
     viewer: Any = None, topic: str | None = None,
@@ -47,9 +47,11 @@ def track_file(
     ``model``, ``init_pose`` (``T_c_o`` at the first event, 4×4) and ``camera`` default to what a
     simulated recording carries (the IMX636 for a bare 1280×720 file); without a start pose the tracker
     starts lost and searches the image for the object (``first_lock_s`` in the summary: seconds from
-    the first event to the first update not flagged lost). ``notes`` collects lines about such choices
-    for the user. ``viewer`` (a :class:`~evservo.viewer.RerunViewer`) is shown every
-    update; the caller closes it. ``topic`` picks the event topic of a ROS bag."""
+    the first event to the first update not flagged lost); ``init_pose="search"`` starts so even when
+    the recording has ground truth, whose error over the locked updates is then ``gt_locked_*``.
+    ``notes`` collects lines about such choices for the user. ``viewer`` (a
+    :class:`~evservo.viewer.RerunViewer`) is shown every update; the caller closes it. ``topic``
+    picks the event topic of a ROS bag."""
     from tqdm import tqdm
 
     from evservo import bags, io
@@ -65,7 +67,12 @@ def track_file(
     obj = model or (rec.object if rec else None)
     if obj is None:
         raise ValueError(f"{path} has no object model: give --model")
-    if init_pose is None and rec is not None:
+    search = isinstance(init_pose, str)
+    if search and init_pose != "search":
+        raise ValueError(f"init_pose must be a 4x4 pose, None or 'search', got {init_pose!r}")
+    if search:
+        init_pose = None
+    elif init_pose is None and rec is not None:
         init_pose = rec.gt_T[0]
     if init_pose is None and notes is not None:
         notes.append(f"{path} has no start pose: the tracker starts lost and searches for the object")
@@ -112,6 +119,13 @@ def track_file(
             gt_track_rot_rms_deg=float(np.sqrt(np.mean(err_deg**2))),
             gt_track_pos_max_mm=float(err_mm.max()), gt_track_rot_max_deg=float(err_deg.max()),
         )  # fmt: skip
+        held = ~lost
+        if held.any():
+            summary.update(
+                gt_locked_pos_rms_mm=float(np.sqrt(np.mean(err_mm[held] ** 2))),
+                gt_locked_rot_rms_deg=float(np.sqrt(np.mean(err_deg[held] ** 2))),
+                gt_locked_pos_max_mm=float(err_mm[held].max()), gt_locked_rot_max_deg=float(err_deg[held].max()),
+            )  # fmt: skip
     else:
         summary.update(gt_track_pos_rms_mm=None, gt_track_rot_rms_deg=None)
     out = make_out_dir(out, stale=OUTPUTS)
