@@ -74,12 +74,12 @@ class _Procs:
     The tests start one ROS process only once the one before has its node: with Fast DDS over UDP
     alone, two participants created at the same instant on one host were seen (4 of 6 runs) to leave
     one of them deaf to a third participant started before both, for good. Even one after another, a
-    new participant stays cut off from the ones before it in about 1.5 % of starts (3 of 209 runs of
-    the play/track exchange on one machine: the peer started first and a participant created after
-    the cut-off one both missed it, one started after it found it; in another, the peer saw the
-    node's name but none of their topics matched). So each node the test starts must show up in the
-    peer started before it, its topics matched where they share some (``start_seen``), else it is
-    started again, once. That is the middleware's discovery, not the node's behaviour under test."""
+    new participant stays cut off from the ones before it in about 1 % of starts (4 of 326 runs of
+    the play/track exchange on one machine; in one, the peer started first and a participant created
+    after the cut-off one both missed it, while one started after it found it; in another, the peer
+    saw the node's name but none of their topics matched). So each node a test starts must show up
+    in the peer started before it, their shared topics matched (``start_seen``), else it is started
+    again, once: that is the middleware's discovery, not the node's behaviour under test."""
 
     def __init__(self, env: dict, logs: Path) -> None:
         self.env, self.logs, self.procs = env, logs, []
