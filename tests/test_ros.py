@@ -182,12 +182,37 @@ def _pose_text(T: np.ndarray) -> str:
     return ",".join(repr(float(v)) for v in [*T[:3, 3], *Rotation.from_matrix(T[:3, :3]).as_quat()])
 
 
-def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros_env, ns):
+def _with_gap(path: Path, out: Path, gap_us: tuple[int, int]) -> Path:
+    """A copy of the recording ``path`` with every event of ``gap_us`` cut (ground truth kept)."""
+    import shutil
+
+    import h5py
+
+    shutil.copy(path, out)
+    with h5py.File(out, "r+") as f:
+        g = f["events"]
+        keep = (g["t"][:] < gap_us[0]) | (g["t"][:] >= gap_us[1])
+        for name in ("x", "y", "p", "t"):
+            kept = g[name][:][keep]
+            g[name].resize((len(kept),))
+            g[name][:] = kept
+    return out
+
+
+@pytest.mark.parametrize("gap", [False, True], ids=["whole", "gap"])
+def test_play_and_track_nodes_match_the_offline_tracker(small_rec, tmp_path, ros_env, ns, gap):
+    """``gap``: the events of 80–160 ms cut; the node, like ``evservo track``, advances the tracker's
+    stream time over the empty slices, so both flag ``lost`` 20 ms into the gap, update for update."""
     _need_ros()
     rec = load_recording(small_rec)
+    if gap:
+        small_rec = _with_gap(small_rec, tmp_path / "gap.h5", (80_000, 160_000))
     init = _pose_text(rec.gt_T[0])
     assert main(["track", str(small_rec), "--init-pose", init, "--quiet", "--out", str(tmp_path / "offline")]) == 0
     offline = np.genfromtxt(tmp_path / "offline" / "poses.csv", delimiter=",", names=True)
+    if gap:
+        t, lost = offline["t_us"], offline["lost"].astype(bool)
+        assert 80_000 < t[lost & (t >= 80_000)][0] <= 130_000 and lost[(t >= 130_000) & (t <= 160_000)].all()
 
     cam = rec.camera
     got = tmp_path / "peer.json"

@@ -7,7 +7,11 @@
   time against a monotonic clock, so that a threaded tracker sees live-like input.
 
 Each source has ``width`` and ``height`` (pixels), iterates batches until the stream ends (or forever
-for a camera), and is a context manager whose exit releases the device. A missing driver package
+for a camera), and is a context manager whose exit releases the device. A source that knows how far
+its stream has gone sets ``stream_time_us`` before it yields a batch: the sensor time (µs) up to
+which no event exists beyond those yielded; the real loop hands it to the tracker
+(``Tracker.advance_time``) with each empty batch, so events stopping while the sensor's clock runs
+reads ``lost`` 20 ms in. None (the default) when the source cannot tell. A missing driver package
 raises ``ImportError`` naming it; no camera raises :class:`CameraNotFoundError`.
 """
 
@@ -55,6 +59,8 @@ class EventSource(Protocol):
 class _Source:
     width: int
     height: int
+    #: Sensor time (µs) the stream is complete up to after the batch last yielded; None: unknown.
+    stream_time_us: int | None = None
 
     def close(self) -> None:
         """Release the device (idempotent)."""
@@ -91,7 +97,13 @@ class PropheseeCamera(_Source):
         self.height, self.width = (int(v) for v in self._it.get_size())
 
     def __iter__(self) -> Iterator[np.ndarray]:
+        # In delta_t mode the driver serves every slice, empty ones too, and its current time is the
+        # slice's end on the sensor clock (the camera's time-high words advance it without CD
+        # events), so an empty slice is the sensor saying that time went on without events.
+        now = getattr(self._it, "get_current_time", None)
         for events in self._it:
+            if now is not None:
+                self.stream_time_us = int(now()) - 1
             yield events if events.dtype == EVENT_CD else io._as_cd(events)
 
     def close(self) -> None:
@@ -193,6 +205,7 @@ class ReplaySource(_Source):
             if due > now:
                 time.sleep(due - now)
             self.lag_s = max(0.0, time.monotonic() - due)
+            self.stream_time_us = end_us - 1  # the file holds no event before the slice's end
             yield events
             end_us += self.delta_t_us
 

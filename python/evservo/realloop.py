@@ -5,7 +5,9 @@ Three threads share the work:
 * the **camera thread** iterates the event source (a live camera, or a recording replayed at
   ``speed`` × real time by :class:`~evservo.cameras.ReplaySource`), clamps time that steps backwards
   (as ``evservo track`` does) and pushes each batch to the tracker (``push`` never blocks: if the
-  solver falls behind, its queue drops the oldest batches and counts them);
+  solver falls behind, its queue drops the oldest batches and counts them); an empty batch from a
+  source that knows its sensor time (``stream_time_us``) advances the tracker's stream time
+  (``Tracker.advance_time``), so events stopping is flagged ``lost`` by the tracker itself;
 * the **tracker thread** (Rust, no GIL) steps EDFT⁺ on whatever has arrived and publishes poses;
 * the **control loop** (the calling thread) runs every ``1/rate_hz`` seconds against absolute
   deadlines of ``time.monotonic``: it reads the newest pose, runs :class:`~evservo.control.Pbvs`
@@ -229,6 +231,7 @@ class _CameraPump(threading.Thread):
                 if self._halt.is_set():
                     return
                 if not len(ev):
+                    self._advance()
                     continue
                 ev, n, self._t_max = events.clamp_time(ev, self._t_max)
                 off = self.clock() - int(ev["t"][-1]) * 1e-6 / self.speed
@@ -242,6 +245,17 @@ class _CameraPump(threading.Thread):
             self.error = err
         finally:
             self.done.set()
+
+    def _advance(self) -> None:
+        """An empty batch: hand the tracker the sensor time the source vouches for (its
+        ``stream_time_us``: a file's slice end, a camera driver's slice end), so that events stopping
+        while the sensor's clock runs reads ``lost`` 20 ms in rather than only as a stale pose. A
+        source that cannot tell (None) tells nothing: no time is made up from the host clock."""
+        t_us = getattr(self.source, "stream_time_us", None)
+        advance = getattr(self.tracker, "advance_time", None)
+        if t_us is None or advance is None or self._t_max is None or t_us < self._t_max:
+            return
+        advance(int(t_us))
 
     def host_time(self, t_us: int) -> float | None:
         """Host time (``clock`` seconds) of sensor time ``t_us``; None before the first batch."""

@@ -306,6 +306,8 @@ class Tracker:
         poses are exactly those of calling ``update`` per slice; ``Replay.updates()`` returns
         (slice end µs, events, Estimate) for every update so far and ``Replay.snapshots()`` the
         field and projected model after the slices numbered in ``snapshots_at`` (0 = the first).
+        In both modes an empty slice advances the stream time to its end (:meth:`advance_time`: the
+        file vouches that no event came), so a gap in the recording reads ``lost`` after 20 ms.
 
         Returns a :class:`~evservo._evcore.Replay`: ``wait(timeout)`` (raises the replay's error:
         ``DecodeError`` for a corrupt file; Ctrl-C stops it), ``stop()``, ``running``, ``stats()``;

@@ -331,9 +331,16 @@ fn replay_into(
                         Error::Tracking("the tracker is unusable after an internal error".into())
                     })?;
                     match (&mut *state, update) {
-                        (State::Threaded(_), false) if batch.is_empty() => Ok(()),
+                        // An empty slice: the file holds no event before `end_us`, so the
+                        // stream has gone on that far without one (a dropout shows as `lost`).
+                        (State::Threaded(t), false) if batch.is_empty() => {
+                            t.advance_time(end_us - 1)
+                        }
                         (State::Threaded(t), false) => t.push(batch),
                         (State::Sync(core), true) => {
+                            if batch.is_empty() {
+                                core.advance_time(end_us - 1)?;
+                            }
                             k += 1;
                             let snap = snapshots_at.contains(&(k - 1));
                             update_and_log(core, batch, end_us, snap, &log)

@@ -7,10 +7,14 @@ in real time × ``rate``.
 ``track``: subscribes to EventPacket (``evt3`` or ``mono``), decodes the packets as one stream,
 slices it on the same 1 ms event-time grid as ``evservo track`` and runs the same tracker on each
 slice, so its poses equal ``evservo track``'s on the same events whatever the packet boundaries
-and delivery timing. Per update it publishes ``geometry_msgs/PoseStamped`` (``T_c_o``, frame
-``camera_frame``), the same transform on ``/tf`` (``tf2_msgs/TFMessage``, child ``object_frame``)
-and a ``std_msgs/String`` status (JSON: ``t_us`` event time of the slice end, ``lost``, ``confidence``, ``cost``,
-``inlier_fraction``, ``n_events``). Intrinsics from ``--camera FILE`` or else the first
+and delivery timing. As there, an empty slice inside the stream advances the tracker's stream time
+(``Tracker.advance_time``), so a gap in the events reads ``lost`` 20 ms in on the event clock; the
+node learns of the gap only from the first packet after it (an empty packet or its header stamp
+carry no sensor time it could trust, so they advance nothing). Per update it publishes
+``geometry_msgs/PoseStamped`` (``T_c_o``, frame ``camera_frame``), the same transform on ``/tf``
+(``tf2_msgs/TFMessage``, child ``object_frame``) and a ``std_msgs/String`` status (JSON: ``t_us``
+event time of the slice end, ``lost``, ``confidence``, ``cost``, ``inlier_fraction``,
+``n_events``). Intrinsics from ``--camera FILE`` or else the first
 ``sensor_msgs/CameraInfo`` on the camera-info topic.
 """
 
@@ -190,6 +194,8 @@ def track(
                         trk = Tracker(cam_box[0], model, init_pose, solver=solver)
                         end = (int(ev["t"][0]) // batch_us + 1) * batch_us
                     ev, _, t_max = events.clamp_time(ev, t_max)
+                    if not len(ev):  # a later packet's events show that none came before this slice's end
+                        trk.advance_time(end - 1 if t_max is None else max(end - 1, t_max))
                     est = trk.update(ev)
                     _publish(est, end)
                     if viewer is not None:

@@ -30,6 +30,23 @@ log = logging.getLogger(__name__)
 MAX_PENDING_BATCHES = 200
 
 
+class _Tap:
+    """A source's batches, each also handed to ``keep``; the source's sensor time (``stream_time_us``,
+    see :mod:`evservo.cameras`) read through, so the real loop still advances the tracker on it."""
+
+    def __init__(self, source: Iterable[np.ndarray], keep: Callable[[np.ndarray], None]) -> None:
+        self.source, self.keep = source, keep
+
+    @property
+    def stream_time_us(self) -> int | None:
+        return getattr(self.source, "stream_time_us", None)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for ev in self.source:
+            self.keep(ev)
+            yield ev
+
+
 class LiveView:
     """Feeds ``viewer`` (a :class:`~evservo.viewer.RerunViewer`) from a running real loop.
 
@@ -45,11 +62,9 @@ class LiveView:
         self._thread = threading.Thread(target=self._run, name="evservo-viewer", daemon=True)
         self.error: BaseException | None = None
 
-    def tap(self, source: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
-        """``source``'s batches, each also kept for the next frame."""
-        for ev in source:
-            self._events.append(ev)
-            yield ev
+    def tap(self, source: Iterable[np.ndarray]) -> _Tap:
+        """``source``'s batches, each also kept for the next frame (its ``stream_time_us`` passed on)."""
+        return _Tap(source, self._events.append)
 
     def observe(self, t_s: float, T_w_c: np.ndarray, T_c_o_des: np.ndarray) -> None:
         """The loop's per-cycle hook: time since servo start (s), camera pose in the world and

@@ -2,10 +2,12 @@
 recording has it (simulated recordings of :mod:`evservo.sim.record`).
 
 Events are fed to the synchronous tracker in time slices of ``batch_us`` (1 ms), one
-``Tracker.update`` per slice. A Prophesee RAW file (without a viewer) is decoded, sliced and
-tracked in a Rust thread (``Tracker.replay(mode="update")``: the same updates, without Python per
-slice); other formats go through ``evservo.io.open_events`` here. Outputs: ``poses.csv`` (one row
-per update), ``summary.json``, ``overlay.png`` (S* reprojected over the distance field at four
+``Tracker.update`` per slice; an empty slice first advances the tracker's stream time to its end
+(``Tracker.advance_time``: the file vouches that no event came), so a gap in the recording is flagged
+``lost`` 20 ms in. A Prophesee RAW file (without a viewer) is decoded, sliced and tracked in a Rust
+thread (``Tracker.replay(mode="update")``: the same updates, stream time included, without Python
+per slice); other formats go through ``evservo.io.open_events`` here. Outputs: ``poses.csv`` (one
+row per update), ``summary.json``, ``overlay.png`` (S* reprojected over the distance field at four
 instants) and ``error.png``.
 
 Time that steps backwards (real recordings, e.g. EVT3 files where the time base wraps or the
@@ -175,6 +177,8 @@ def _push_slices(trk, slices, end: int, batch_us: int, t_last: int, snap_at: set
         ev, n, t_max = events.clamp_time(ev, t_max)
         run.n_clamped += n
         started = time.perf_counter()
+        if not len(ev):  # the file holds no event before this slice's end: the stream went on without
+            trk.advance_time(end - 1 if t_max is None else max(end - 1, t_max))  # one (a gap reads `lost`)
         est = trk.update(ev)
         run.solve_s += time.perf_counter() - started
         if viewer is not None:
