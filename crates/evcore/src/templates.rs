@@ -455,6 +455,7 @@ mod tests {
     use crate::mesh::{test_cube, Shading};
     use crate::se3::distance;
     use crate::solve::lm::{lm_pyramid, LmParams};
+    use crate::tracker::{TrackerConfig, TrackerCore};
 
     #[test]
     fn the_global_search_finds_a_cube_anywhere_in_the_image() {
@@ -535,21 +536,26 @@ mod tests {
         );
     }
 
-    #[test]
-    fn a_pass_needs_newer_events_and_a_symmetric_cube_is_never_trusted() {
-        use crate::event::EventBatch;
-        use crate::tracker::{TrackerConfig, TrackerCore};
-        // A camera without distortion: the events below are written at rectified pixels.
-        let cam = Camera::imx636().rectified();
+    /// A 15 cm grey cube and a tracker with no pose searching for it over its template bank.
+    fn searching_cube(cam: &Camera) -> (Mesh, TrackerCore) {
         let mesh = test_cube(0.15, Shading::Constant(0.8));
         let bank = TemplateBank::render(
             &mesh,
-            &cam,
+            cam,
             BankParams::default(),
             &PointSetParams::default(),
         )
         .unwrap();
-        let mut core = TrackerCore::searching(&cam, bank, TrackerConfig::default()).unwrap();
+        let core = TrackerCore::searching(cam, bank, TrackerConfig::default()).unwrap();
+        (mesh, core)
+    }
+
+    #[test]
+    fn a_pass_needs_newer_events_and_a_symmetric_cube_is_never_trusted() {
+        use crate::event::EventBatch;
+        // A camera without distortion: the events below are written at rectified pixels.
+        let cam = Camera::imx636().rectified();
+        let (mesh, mut core) = searching_cube(&cam);
         let r = UnitQuaternion::from_scaled_axis(Vector3::new(0.5, -0.7, 0.3));
         let truth = Pose::from_parts(Translation3::new(-0.15, 0.08, 0.8), r);
         let dense = PointSetParams {
@@ -590,18 +596,9 @@ mod tests {
     #[test]
     fn a_tracker_without_a_pose_never_relocks_on_a_wrong_pose() {
         use crate::event::EventBatch;
-        use crate::tracker::{TrackerConfig, TrackerCore};
         let raw = Camera::imx636();
         let cam = raw.rectified();
-        let mesh = test_cube(0.15, Shading::Constant(0.8));
-        let bank = TemplateBank::render(
-            &mesh,
-            &cam,
-            BankParams::default(),
-            &PointSetParams::default(),
-        )
-        .unwrap();
-        let mut core = TrackerCore::searching(&cam, bank, TrackerConfig::default()).unwrap();
+        let (mesh, mut core) = searching_cube(&cam);
         assert!(core.latest().lost);
         let r = UnitQuaternion::from_scaled_axis(Vector3::new(0.5, -0.7, 0.3));
         let at =
