@@ -349,8 +349,10 @@ class Tracker:
         ``support`` (model points near an active pixel, and near a recent event while the model
         moves), ``support_any`` (without the freshness test), ``chance`` (pixels around the model
         near an active pixel), ``support_tight`` and ``chance_tight`` (the same within 1 px),
-        ``visible`` (model points in the image), and ``active`` / ``active_around`` (the share of the
-        model's 8×8 sensor blocks, and of the other blocks around it, that fired within the last 10 ms)."""
+        ``visible`` (model points in the image), ``explained`` (the share of the active pixels around the
+        model that lie near it: measured for global-search candidates only, else 0), and ``active`` /
+        ``active_around`` (the share of the model's 8×8 sensor blocks, and of the other blocks around
+        it, that fired within the last 10 ms)."""
         return self._core.evidence()
 
     def stats(self) -> dict[str, float]:

@@ -455,18 +455,11 @@ impl PyTracker {
     }
 
     /// The parts of the last tracked pose's confidence (a dict of fractions; synchronous use):
-    /// support (fresh), support_any, chance, support_tight, chance_tight, visible.
+    /// see [`put_evidence`].
     fn evidence<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
         let e = self.with_core(py, |core| core.evidence())?;
         let d = pyo3::types::PyDict::new(py);
-        d.set_item("support", e.support)?;
-        d.set_item("support_any", e.support_any)?;
-        d.set_item("chance", e.chance)?;
-        d.set_item("support_tight", e.support_tight)?;
-        d.set_item("chance_tight", e.chance_tight)?;
-        d.set_item("visible", e.visible)?;
-        d.set_item("active", e.active)?;
-        d.set_item("active_around", e.active_around)?;
+        put_evidence(&d, &e)?;
         Ok(d)
     }
 
@@ -506,12 +499,7 @@ impl PyTracker {
                 let e = c.evidence;
                 d.set_item("confidence", e.confidence())?;
                 d.set_item("acquisition", evcore::templates::acquisition_score(&e))?;
-                d.set_item("support", e.support)?;
-                d.set_item("chance", e.chance)?;
-                d.set_item("support_tight", e.support_tight)?;
-                d.set_item("chance_tight", e.chance_tight)?;
-                d.set_item("visible", e.visible)?;
-                d.set_item("explained", e.explained)?;
+                put_evidence(&d, &e)?;
                 Ok(d)
             })
             .collect()
@@ -634,4 +622,23 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     // The default confidence thresholds of `lost`, for the bench's ROC.
     m.add("LOST_BELOW", evcore::tracker::LOST_BELOW)?;
     m.add("RELOCK_ABOVE", evcore::tracker::RELOCK_ABOVE)
+}
+
+/// The parts of a confidence into `d`: support (fresh), support_any, chance, support_tight,
+/// chance_tight, visible, explained (measured for global-search candidates only, else 0), active
+/// and active_around.
+fn put_evidence(
+    d: &Bound<'_, pyo3::types::PyDict>,
+    e: &evcore::confidence::Evidence,
+) -> PyResult<()> {
+    d.set_item("support", e.support)?;
+    d.set_item("support_any", e.support_any)?;
+    d.set_item("chance", e.chance)?;
+    d.set_item("support_tight", e.support_tight)?;
+    d.set_item("chance_tight", e.chance_tight)?;
+    d.set_item("visible", e.visible)?;
+    d.set_item("explained", e.explained)?;
+    d.set_item("active", e.active)?;
+    d.set_item("active_around", e.active_around)?;
+    Ok(())
 }
