@@ -224,6 +224,15 @@ class Tracker:
         newest event."""
         self._core.advance_time(int(t_us))
 
+    def update_slice(self, events: np.ndarray, end_us: int, newest_us: int | None) -> Estimate:
+        """Synchronous: ``update`` with one time slice of a stream, ending at ``end_us`` (µs,
+        exclusive), all of whose earlier events were given (``newest_us``: the newest of them, None
+        before any). An empty slice first advances the stream time to its end (``advance_time``): the
+        source vouches that no event came, so a gap in the events reads ``lost`` 20 ms in."""
+        if not len(events):
+            self.advance_time(end_us - 1 if newest_us is None else max(end_us - 1, newest_us))
+        return self.update(events)
+
     def step(self, n: int = 1) -> Estimate:
         """Synchronous: run ``n`` single updates (one LM or one search step each) on the current events."""
         return self._core.step(n)

@@ -194,9 +194,8 @@ def track(
                         trk = Tracker(cam_box[0], model, init_pose, solver=solver)
                         end = (int(ev["t"][0]) // batch_us + 1) * batch_us
                     ev, _, t_max = events.clamp_time(ev, t_max)
-                    if not len(ev):  # a later packet's events show that none came before this slice's end
-                        trk.advance_time(end - 1 if t_max is None else max(end - 1, t_max))
-                    est = trk.update(ev)
+                    # An empty slice: a later packet's events show that none came before its end.
+                    est = trk.update_slice(ev, end, t_max)
                     _publish(est, end)
                     if viewer is not None:
                         viewer.track(end, ev, est, trk)

@@ -121,12 +121,12 @@ def track_file(
             gt_track_rot_rms_deg=float(np.sqrt(np.mean(err_deg**2))),
             gt_track_pos_max_mm=float(err_mm.max()), gt_track_rot_max_deg=float(err_deg.max()),
         )  # fmt: skip
-        held = ~lost
-        if held.any():
+        locked = ~lost
+        if locked.any():
             summary.update(
-                gt_locked_pos_rms_mm=float(np.sqrt(np.mean(err_mm[held] ** 2))),
-                gt_locked_rot_rms_deg=float(np.sqrt(np.mean(err_deg[held] ** 2))),
-                gt_locked_pos_max_mm=float(err_mm[held].max()), gt_locked_rot_max_deg=float(err_deg[held].max()),
+                gt_locked_pos_rms_mm=float(np.sqrt(np.mean(err_mm[locked] ** 2))),
+                gt_locked_rot_rms_deg=float(np.sqrt(np.mean(err_deg[locked] ** 2))),
+                gt_locked_pos_max_mm=float(err_mm[locked].max()), gt_locked_rot_max_deg=float(err_deg[locked].max()),
             )  # fmt: skip
     else:
         summary.update(gt_track_pos_rms_mm=None, gt_track_rot_rms_deg=None)
@@ -177,9 +177,7 @@ def _push_slices(trk, slices, end: int, batch_us: int, t_last: int, snap_at: set
         ev, n, t_max = events.clamp_time(ev, t_max)
         run.n_clamped += n
         started = time.perf_counter()
-        if not len(ev):  # the file holds no event before this slice's end: the stream went on without
-            trk.advance_time(end - 1 if t_max is None else max(end - 1, t_max))  # one (a gap reads `lost`)
-        est = trk.update(ev)
+        est = trk.update_slice(ev, end, t_max)  # an empty slice: the file holds no event before its end
         run.solve_s += time.perf_counter() - started
         if viewer is not None:
             viewer.track(end, ev, est, trk, gt(end) if gt else None)
