@@ -1275,12 +1275,18 @@ impl Solver {
 }
 
 impl Solver {
-    /// Publish an update without a pose change: the object is out of view (or nothing of it
-    /// projects), so the pose cannot be trusted and is searched for.
-    fn lose(&mut self, (t_us, pushed_ns): (i64, u64), n_events: u64, visible_fraction: f32) {
+    /// Number the next published estimate and stamp it with its newest batch's event time (µs)
+    /// and push time (ns).
+    fn stamp(&mut self, (t_us, pushed_ns): (i64, u64)) {
         self.last.seq += 1;
         self.last.t_us = t_us;
         self.last.pushed_ns = pushed_ns;
+    }
+
+    /// Publish an update without a pose change: the object is out of view (or nothing of it
+    /// projects), so the pose cannot be trusted and is searched for.
+    fn lose(&mut self, (t_us, pushed_ns): (i64, u64), n_events: u64, visible_fraction: f32) {
+        self.stamp((t_us, pushed_ns));
         self.last.n_events = n_events;
         self.last.visible_fraction = visible_fraction;
         self.last.confidence = 0.0;
@@ -1296,9 +1302,7 @@ impl Solver {
     /// Nothing is searched for: once events resume the pose is tracked on from where it was
     /// (seeing only what fired since, see [`AFTER_GAP_US`]) and judged as [`Solver::judge`] says.
     fn blind(&mut self, (t_us, pushed_ns): (i64, u64)) -> Estimate {
-        self.last.seq += 1;
-        self.last.t_us = t_us;
-        self.last.pushed_ns = pushed_ns;
+        self.stamp((t_us, pushed_ns));
         self.last.confidence = 0.0;
         if !self.last.lost {
             self.lost_by = LostBy::Dropout {
@@ -1676,9 +1680,7 @@ impl Solver {
                 .fold(0.0, f32::max)
         });
         let best = best.filter(|b| b.0 >= ACQUISITION_MARGIN * rival);
-        self.last.seq += 1;
-        self.last.t_us = t_us;
-        self.last.pushed_ns = pushed_ns;
+        self.stamp((t_us, pushed_ns));
         self.last.n_events = n_events;
         self.last.step = StepKind::Lm;
         self.last.confidence = best.map_or(0.0, |b| b.0);
