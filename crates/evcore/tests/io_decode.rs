@@ -727,13 +727,8 @@ proptest! {
 /// sensor's edge, masks are often empty, and ADDR_Y words move y on and off the sensor.
 #[test]
 fn vector_runs_decode_as_word_by_word() {
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        state
-    };
+    let mut rng = evcore::rng::Rng::new(0x9e37_79b9_7f4a_7c15u64);
+    let mut next = move || rng.next_u64();
     for case in 0..3000 {
         let (width, height) = (1 + (next() % 1400) as u32, 1 + (next() % 800) as u32);
         let mut words: Vec<u16> = vec![0x8000 | (next() & 0xfff) as u16];

@@ -458,13 +458,8 @@ mod tests {
 
     #[test]
     fn address_scans_in_lanes_count_and_check_as_word_by_word() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = crate::rng::Rng::new(0x2545_f491_4f6c_dd1du64);
+        let mut next = move || rng.next_u64();
         for len in (0..80).chain([4095, 4096, 4097, 1 << 20]) {
             // Mostly ADDR words (the types 0x0 to 0x3), addresses over the whole 11-bit range; an
             // odd length leaves a byte that is not a word.
