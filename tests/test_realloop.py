@@ -137,6 +137,30 @@ def test_rig_config_object_section_supplies_model_and_poses(rec_path, rec, tmp_p
     np.testing.assert_allclose(s["T_c_o_init"], T0, atol=1e-9)
 
 
+def test_init_pose_search_starts_lost_even_with_ground_truth_and_holds_the_arm(rec_path, tmp_path, capsys):
+    """``--init-pose search`` on a simulated recording (whose ground truth would otherwise give the
+    start pose): the tracker starts lost and runs global searches, the arm is held still until it
+    locks, and the summary does not report errors of the search's placeholder pose as servoing."""
+    out = tmp_path / "out"
+    args = ["servo", "--robot", "sim", "--camera", str(rec_path), "--init-pose", "search", "--settle", "0.1",
+            "--duration", "0.3", "--replay-speed", str(SPEED), "--stale-after", "1.0", "--out", str(out)]  # fmt: skip
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "note: --init-pose search: the tracker searches" in printed
+    s = json.loads((out / "summary.json").read_text())
+    assert s["config"]["search"] and s["T_c_o_init"] is None
+    assert s["tracker_steps"]["global"] >= 1, s["tracker_steps"]
+    log = np.genfromtxt(out / "log.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    searching = log["state"] == "searching"
+    assert searching[0]
+    assert np.all(log["v_cmd_mps"][searching] == 0.0) and np.all(log["w_cmd_dps"][searching] == 0.0)
+    assert "loss: detection delay" in printed
+    if s["lost_fraction"] == 1.0:
+        assert "the tracker never locked on the object" in printed and "servo error" not in printed
+    else:
+        assert "servo error (estimate vs desired)" in printed
+
+
 # -- (b) the UR loopback peer: commands stream, the link dies, the loop stops ----------------------
 
 

@@ -443,7 +443,11 @@ def run_real_loop(
         servo_s=float(recorded["t_s"][-1]) if rec.n else 0.0,
         missed_cycles=cadence.missed if cadence is not None else 0,
         watchdog=spells,
-        tracker_steps={"lm": int(stats.get("lm_steps", 0)), "search": int(stats.get("search_steps", 0))},
+        tracker_steps={
+            "lm": int(stats.get("lm_steps", 0)),
+            "search": int(stats.get("search_steps", 0)),
+            "global": int(stats.get("reacquire_passes", 0)),
+        },
         tracker_s=max(tracker_t1 - tracker_t0, 1e-9),
         events=pump.events,
         events_dropped=int(stats.get("events_dropped", 0)),
@@ -576,7 +580,8 @@ def summarize(r: RealLoopResult, gt: tuple[np.ndarray, np.ndarray] | None = None
     s_pos, s_rot = pose_errors(r.T_c_o_est, np.broadcast_to(r.T_c_o_des, (n, 4, 4)))
     cam_rot = rotation_from_first_rad(r.T_w_c)
     d_cam = r.T_w_c[:, :3, 3] - r.T_w_c[:1, :3, 3] if n else np.zeros((0, 3))
-    n_steps = sum(r.tracker_steps.values())
+    # Pose steps: a global pass (while lost) is no update of a tracked pose.
+    n_steps = r.tracker_steps["lm"] + r.tracker_steps["search"]
     nominal = r.config.rate_hz * r.servo_s
     return {
         "completed": r.completed,

@@ -244,23 +244,15 @@ def print_summary(s: dict) -> None:
           f"Panda {t['panda_rate_hz']:g} Hz + {t['panda_latency_ms']:g} ms, "
           f"UR5e {t['ur_rate_hz']:g} Hz + {t['ur_latency_ms']:g} ms; command cut to the arm's reach "
           f"{100 * s['arm_limited_fraction']:.0f} % of the time")  # fmt: skip
+    from evservo.runtime.loss import describe as describe_loss
+    from evservo.runtime.watchdog import describe_spell
+
     loss = s.get("loss") or {}
     if loss.get("wrong_spells") or loss.get("holding_s") or c.get("occlusions") or c.get("start_lost"):
-        print(f"loss: detection delay {_ms(loss['loss_detection_delay_ms'])}, re-lock {_ms(loss['relock_ms'])}, "
-              f"longest confident-wrong {_ms(loss['confident_wrong_ms'])} ({_ms(loss['confident_wrong_total_ms'])} in "
-              f"all), false loss {_pct(loss['false_loss_rate'])}, loop held {loss['holding_s']:.2f} s")  # fmt: skip
-    from evservo.runtime.watchdog import describe_spell
+        print(describe_loss(loss, loss["holding_s"]))
 
     for w in s["watchdog"]:
         print(describe_spell(w))
-
-
-def _ms(v: float | None) -> str:
-    return "n/a" if v is None else ("never" if v == float("inf") else f"{v:.0f} ms")
-
-
-def _pct(v: float | None) -> str:
-    return "n/a" if v is None else f"{100 * v:.1f} %"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -309,9 +301,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--config", metavar="RIG.yaml", help="rig config: camera intrinsics, hand-eye T_e_c, limits")
     r.add_argument(
         "--init-pose",
-        metavar="x,y,z,qx,qy,qz,qw",
-        help="object in camera at start (default: config's, else none: the tracker searches and the arm holds "
-        "still until it locks)",
+        metavar="x,y,z,qx,qy,qz,qw|search",
+        help="object in camera at start, or 'search': start lost, the arm holding still until the tracker has "
+        "found the object (default: the config's, else a simulated recording's ground truth, else search)",
     )
     add_real_loop_arguments(r)
     r.add_argument(

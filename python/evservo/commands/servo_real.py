@@ -117,7 +117,10 @@ def _run_real(args: argparse.Namespace) -> int:
     given = {field: getattr(args, opt) for opt, field in CONFIG_OPTIONS.items() if getattr(args, opt) is not None}
     cfg = RealLoopConfig(duration_s=args.duration, feedforward=args.feedforward, dry_run=args.dry_run, **given)
     speed = cfg.speed
-    init = _pose(args.init_pose, "--init-pose") if args.init_pose else None
+    # "search": start lost even where a start pose is known (a simulated recording's ground truth, the
+    # rig's), as `evservo track --init-pose search` does; that ground truth then scores the lock.
+    search = args.init_pose == "search"
+    init = _pose(args.init_pose, "--init-pose") if args.init_pose and not search else None
     desired = _pose(args.desired_pose, "--desired-pose") if args.desired_pose else None
 
     # The event source, and what a simulated recording can stand in for (intrinsics, model, start pose).
@@ -140,14 +143,15 @@ def _run_real(args: argparse.Namespace) -> int:
         model = args.model or (rig.model if rig else None) or (rec.object if rec else None)
         if model is None:
             raise InputError("give --model (a built-in name or a mesh path) or object.model in the rig config")
-        if init is None:
-            init = rig.init_pose if rig is not None else None
-        if init is None and rec is not None:
+        if init is None and not search and rig is not None:
+            init = rig.init_pose
+        if init is None and not search and rec is not None:
             t_first = io.info(args.camera)["t_first_us"] or 0
             init = rec.gt_T[int(np.argmin(np.abs(rec.gt_t_us - t_first)))]
         if init is None:
-            print("note: no start pose (--init-pose, object.init_pose in the config): the tracker searches for the "
-                  "object and the arm holds still until it has locked; the desired pose is captured then")  # fmt: skip
+            why = "--init-pose search" if search else "no start pose (--init-pose, object.init_pose in the config)"
+            print(f"note: {why}: the tracker searches for the object and the arm holds still until it has locked; "
+                  "the desired pose is captured then")  # fmt: skip
             cfg = replace(cfg, search=True)
         if desired is None and rig is not None:
             desired = rig.desired_pose
@@ -203,10 +207,20 @@ def print_real_summary(s: dict) -> None:
     print(f"\n{state} after {s['servo_s']:.2f} s of servoing: {s['ended']}")
     print(f"tracker {s['tracker_rate_hz']:.0f} steps/s, pose age {s['pose_age_mean_ms']:.1f} ms mean "
           f"({s['pose_age_max_ms']:.1f} max), {s['events']} events, {s['events_dropped']} dropped")  # fmt: skip
-    print(f"servo error (estimate vs desired): {s['servo_pos_rms_mm']:.2f} mm, {s['servo_rot_rms_deg']:.2f} deg RMS")
-    if s.get("gt_track_pos_rms_mm") is not None:
-        print(f"tracking error (estimate vs the recording's truth): {s['gt_track_pos_rms_mm']:.2f} mm, "
-              f"{s['gt_track_rot_rms_deg']:.2f} deg RMS")  # fmt: skip
+    passes = s["tracker_steps"].get("global", 0)
+    if s["control_cycles"] and s["lost_fraction"] == 1.0:
+        # Every pose was the search's placeholder: errors against it would be numbers about nothing.
+        print(f"the tracker never locked on the object ({passes} global searches); the arm held still")
+    else:
+        print(f"servo error (estimate vs desired): {s['servo_pos_rms_mm']:.2f} mm, "
+              f"{s['servo_rot_rms_deg']:.2f} deg RMS")  # fmt: skip
+        if s.get("gt_track_pos_rms_mm") is not None:
+            print(f"tracking error (estimate vs the recording's truth): {s['gt_track_pos_rms_mm']:.2f} mm, "
+                  f"{s['gt_track_rot_rms_deg']:.2f} deg RMS")  # fmt: skip
+    if s.get("loss") is not None and (s["config"]["search"] or s["loss"]["wrong_spells"] or passes):
+        from evservo.runtime.loss import describe as describe_loss
+
+        print(describe_loss(s["loss"], s["holding_s"]))
     print(f"control: {s['control_cycles']} cycles at {s['control_rate_hz']:.0f} Hz, {s['missed_cycles']} missed, "
           f"cycle {s['cycle_time_mean_ms']:.2f} ms mean / {s['cycle_time_max_ms']:.2f} max")  # fmt: skip
     g = s.get("gate") or {}

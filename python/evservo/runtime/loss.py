@@ -84,3 +84,19 @@ def loss_metrics(
         "undetected_spells": undetected,
         "lost_fraction": float(np.mean(lost)),
     }
+
+
+def describe(loss: dict, holding_s: float) -> str:
+    """One line of :func:`loss_metrics`' figures for a command's summary; ``holding_s``: how long the
+    loop held the arm instead of servoing (s)."""
+
+    def ms(v: float | None) -> str:
+        return "n/a" if v is None else ("never" if v == float("inf") else f"{v:.0f} ms")
+
+    rate = loss["false_loss_rate"]
+    false_loss = "n/a" if rate is None else f"{100 * rate:.1f} %"
+    return (
+        f"loss: detection delay {ms(loss['loss_detection_delay_ms'])}, re-lock {ms(loss['relock_ms'])}, "
+        f"longest confident-wrong {ms(loss['confident_wrong_ms'])} ({ms(loss['confident_wrong_total_ms'])} in all), "
+        f"false loss {false_loss}, loop held {holding_s:.2f} s"
+    )
