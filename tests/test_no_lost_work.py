@@ -18,7 +18,7 @@ from evservo import io
 from evservo.cli import main
 from evservo.control import Pbvs
 from evservo.interrupt import StopOnInterrupt
-from evservo.outputs import OutputError, atomic_path, check_out_file, prepare_out_dir
+from evservo.outputs import OutputError, atomic_path, check_out_file, prepare_out_dir, read_json
 from evservo.tracking import Tracker
 
 
@@ -92,6 +92,24 @@ def test_an_unwritable_out_is_refused(tmp_path):
             prepare_out_dir(ro / "out")
     finally:
         ro.chmod(0o700)
+
+
+def test_summaries_are_strict_json_and_read_back_with_their_non_finite_figures(tmp_path):
+    """A run that never re-locked has an infinite re-lock time and no lag (NaN): its summary.json must
+    still be JSON that any parser takes (bare Infinity/NaN are not), and read back as those floats."""
+    from evservo.runtime.report import write_summary
+
+    summary = {"loss": {"relock_ms": float("inf"), "detection_ms": None}, "lag_s": np.float64("nan"),
+               "cw": [np.float32(2.5), -np.inf], "n": np.int64(3), "name": "x"}  # fmt: skip
+    path = write_summary(tmp_path / "summary.json", summary)
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"not strict JSON: {constant}")
+
+    json.loads(path.read_text(), parse_constant=refuse)
+    back = read_json(path)
+    assert back["loss"] == {"relock_ms": float("inf"), "detection_ms": None}
+    assert np.isnan(back["lag_s"]) and back["cw"] == [2.5, float("-inf")] and back["n"] == 3 and back["name"] == "x"
 
 
 def _interrupt_on_call(monkeypatch, owner: object, name: str, n: int) -> None:

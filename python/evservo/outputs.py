@@ -10,12 +10,29 @@ half-written file nor destroys the previous one.
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
-__all__ = ["OutputError", "atomic_path", "check_out_file", "make_out_dir", "prepare_out_dir", "write_text_atomic"]
+__all__ = [
+    "OutputError",
+    "atomic_path",
+    "check_out_file",
+    "json_text",
+    "make_out_dir",
+    "prepare_out_dir",
+    "read_json",
+    "write_text_atomic",
+]
+
+#: Non-finite floats as JSON strings: bare ``NaN``/``Infinity`` are not JSON (JavaScript's parser
+#: rejects them, jq reads ``Infinity`` as 1.8e308), and ``null`` would lose "never" (an infinite
+#: re-lock time) against "did not apply" (None).
+_NON_FINITE = {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}
 
 
 class OutputError(ValueError):
@@ -102,3 +119,37 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` to ``path`` through :func:`atomic_path`."""
     with atomic_path(path) as tmp:
         tmp.write_text(text)
+
+
+def _finite_or_text(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _finite_or_text(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_or_text(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return "NaN" if math.isnan(obj) else ("Infinity" if obj > 0 else "-Infinity")
+    return obj
+
+
+def _numpy_scalar(obj: Any) -> Any:
+    item = getattr(obj, "item", None)  # numpy scalars (not imported here: this module stays light)
+    if item is None:
+        raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+    return _finite_or_text(item())
+
+
+def json_text(obj: Any) -> str:
+    """``obj`` as indented, strict JSON (numpy scalars as numbers, non-finite floats as the strings
+    ``"NaN"``, ``"Infinity"``, ``"-Infinity"``, which :func:`read_json` turns back into floats)."""
+    return json.dumps(_finite_or_text(obj), indent=2, default=_numpy_scalar, allow_nan=False) + "\n"
+
+
+def read_json(path: str | os.PathLike) -> Any:
+    """A file :func:`json_text` wrote (or any JSON), the non-finite floats restored."""
+
+    def back(v: Any) -> Any:
+        if isinstance(v, str):
+            return _NON_FINITE.get(v, v)
+        return [back(x) for x in v] if isinstance(v, list) else v  # dicts were restored on the way up
+
+    return back(json.loads(Path(path).read_text(), object_hook=lambda d: {k: back(v) for k, v in d.items()}))

@@ -11,12 +11,12 @@ are flagged by mistake (FPR).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from evservo import _evcore
+from evservo.outputs import json_text
 from evservo.sim.scenarios import ScenarioRun, run_scenario, scenarios, score
 
 SOLVERS = ("edft+", "edopts", "edft")
@@ -68,7 +68,7 @@ def run(out: Path, quick: bool = False, sources: tuple[str, ...] = ("edges", "re
                     labelled.append(r)
     curve = roc(np.concatenate([r.confidence for r in labelled]), np.concatenate([r.wrong for r in labelled]))
     result = {"rows": rows, "roc": curve}
-    (out / "confidence.json").write_text(json.dumps(result, indent=2, default=float) + "\n")
+    (out / "confidence.json").write_text(json_text(result))
     (out / "confidence.md").write_text(report(result))
     return result
 

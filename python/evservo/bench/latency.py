@@ -39,7 +39,6 @@ solver would.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import platform
 import subprocess
@@ -55,6 +54,7 @@ import numpy as np
 import evservo
 from evservo import geometry, trajectories
 from evservo.events import EVENT_CD
+from evservo.outputs import json_text
 from evservo.scheduling import calling_thread_scheduling_kept
 from evservo.synth import edge_events
 from evservo.tracking import FIFO_PRIORITY, Tracker, model_point_set
@@ -403,7 +403,7 @@ def run(out: Path, quick: bool = False, samples: Path | None = None) -> dict:
         result["decode_mev_per_s"] = {
             p.name: decode_comparison(p, 3 if quick else 15) for p in sorted(samples.glob("*.raw"))
         }
-    (out / "latency.json").write_text(json.dumps(result, indent=2))
+    (out / "latency.json").write_text(json_text(result))
     m = result["machine"]
     lines = [
         f"Command: `{result['command']} --out {out}`; evservo {m['evservo']}, Python {m['python']}, {m['cpus']} CPUs; "

@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 import evservo
+from evservo.outputs import json_text, read_json
 from evservo.sim.episode_config import PREDICTORS, EpisodeConfig
 
 # (pos mm, rot °) of the paper's Table I/II: EDFT⁺ mean ± std over three runs, EDOPTS one run.
@@ -184,7 +185,7 @@ def _run_one(cfg: EpisodeConfig, out_dir: str) -> dict:
 
 def _load_summary(path: Path) -> dict:
     try:
-        return json.loads(path.read_text())
+        return read_json(path)
     except (OSError, ValueError) as e:
         raise ValueError(f"{path}: unreadable episode summary ({e}); delete it to rerun the episode") from None
 
@@ -555,5 +556,5 @@ def run(
         "evservo": evservo.__version__,
         "episodes": [{"section": sec, "key": k, "config": asdict(cfg), "summary": s} for sec, k, cfg, s in episodes],
     }
-    (out / "results.json").write_text(json.dumps(results, indent=2, default=float))
+    (out / "results.json").write_text(json_text(results))
     return results

@@ -27,7 +27,6 @@ interrupted run (Ctrl-C) resumes.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from dataclasses import asdict, replace
@@ -37,6 +36,7 @@ import numpy as np
 
 import evservo
 from evservo.bench.paper import _run_one, code_version, reuse
+from evservo.outputs import json_text
 from evservo.sim.episode_config import EpisodeConfig
 
 SOLVERS = ("edft+", "edopts", "edft")
@@ -117,7 +117,7 @@ def run(out: Path, quick: bool = False, events: str = "edges") -> dict:
         "reused": reused,
         "rows": rows,
     }
-    (out / "robustness.json").write_text(json.dumps(result, indent=2, default=float) + "\n")
+    (out / "robustness.json").write_text(json_text(result))
     (out / "robustness.md").write_text(report(result))
     return result
 

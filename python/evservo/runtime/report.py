@@ -6,22 +6,21 @@ layout and one plot."""
 from __future__ import annotations
 
 import csv
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from evservo.geometry import rotation_from_first_rad
-from evservo.outputs import write_text_atomic
+from evservo.outputs import json_text, write_text_atomic
 from evservo.runtime.watchdog import WatchdogSpell
 
 
 def write_summary(path: str | Path, summary: dict) -> Path:
-    """``summary`` as indented JSON (numpy scalars as floats), replaced atomically: a reader sees the
-    previous file or the whole new one. Writers call it last, after the run's other outputs."""
+    """``summary`` as strict JSON (:func:`~evservo.outputs.json_text`), replaced atomically: a reader
+    sees the previous file or the whole new one. Writers call it last, after the run's other outputs."""
     p = Path(path)
-    write_text_atomic(p, json.dumps(summary, indent=2, default=float) + "\n")
+    write_text_atomic(p, json_text(summary))
     return p
 
 
