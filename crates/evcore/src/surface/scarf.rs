@@ -216,9 +216,8 @@ pub struct ScarfWriter {
     shared: Arc<Shared>,
     geometry: ScarfGeometry,
     layout: Layout,
-    /// Per padded block, the slot written last (0..N); kept apart from the rings so this hot,
-    /// small array stays cached while the rings miss.
-    heads: Box<[u8]>,
+    /// Per padded block: where its ring is, the slot written last and its count cells.
+    blocks: Box<[Block]>,
     /// Per padded block, N entries: a centre event's block-local index or the spare value.
     rings: Rings,
     /// Writer-side copy of the active-pixel total, published after each batch.
@@ -235,13 +234,23 @@ struct Layout {
     row_of: RowOf,
     cols: Box<[AxisEntry]>,
     rows: Box<[AxisEntry]>,
-    /// Per padded block, the count cell a ring entry's offset starts from: [the pixel index of its
-    /// top-left pixel (0 for pad blocks, whose rings only hold the spare value), its spare cell],
-    /// indexed by "the entry is the spare value".
-    bases: Box<[[u32; 2]]>,
     /// Pixel offset from a block's top-left pixel of each block-local index, then 0 for the spare
     /// value (whose base is the spare cell itself).
     local_offsets: Box<[u32]>,
+}
+
+/// One padded block's ring state and count cells, together so that an update reads one 16-byte
+/// record (and no ring index is multiplied out) rather than three arrays.
+#[derive(Debug, Clone, Copy)]
+struct Block {
+    /// Ring index of the slot written last, in start..start + N.
+    last: u32,
+    /// Ring index of the block's first slot.
+    start: u32,
+    /// The count cell a ring entry's offset starts from: [the pixel index of the block's top-left
+    /// pixel (0 for pad blocks, whose rings only hold the spare value), the block's spare cell],
+    /// indexed by "the entry is the spare value".
+    cells: [u32; 2],
 }
 
 /// A ring entry: a centre event's block-local index, or the spare value (the block area).
@@ -319,11 +328,18 @@ impl Scarf {
         let rows = axis_table(height, bh, geometry.grid_h, -1, padded_w as u32, bw);
         // Spare cells follow the count image, one per padded block: n_pixels + n_padded cells, far
         // below u32::MAX for a grid within 16384².
-        let mut bases: Vec<[u32; 2]> = (0..n_padded).map(|b| [0, (n_pixels + b) as u32]).collect();
+        let n = geometry.fifo_len;
+        let mut blocks: Vec<Block> = (0..n_padded)
+            .map(|b| Block {
+                last: b as u32 * n,
+                start: b as u32 * n,
+                cells: [0, (n_pixels + b) as u32],
+            })
+            .collect();
         for by in 0..geometry.grid_h {
             for bx in 0..geometry.grid_w {
                 let b = (by + 1) as usize * padded_w as usize + (bx + 1) as usize;
-                bases[b][0] = (bh / 2 + by * bh) * width + bw / 2 + bx * bw;
+                blocks[b].cells[0] = (bh / 2 + by * bh) * width + bw / 2 + bx * bw;
             }
         }
         let area = bw * bh;
@@ -352,10 +368,9 @@ impl Scarf {
                 row_of: RowOf::new(width),
                 cols,
                 rows,
-                bases: bases.into_boxed_slice(),
                 local_offsets,
             },
-            heads: vec![0; n_padded].into_boxed_slice(),
+            blocks: blocks.into_boxed_slice(),
             rings,
             active: 0,
         };
@@ -388,10 +403,10 @@ impl Scarf {
 impl ScarfWriter {
     /// Ingest events at rectified pixel indices; indices ≥ width·height are skipped.
     pub fn ingest(&mut self, pixels: &[u32]) {
-        let (layout, heads, counts) = (&self.layout, &mut *self.heads, &*self.shared.counts);
+        let (layout, blocks, counts) = (&self.layout, &mut *self.blocks, &*self.shared.counts);
         self.active = match &mut self.rings {
-            Rings::Narrow(rings) => layout.ingest(pixels, heads, rings, counts, self.active),
-            Rings::Wide(rings) => layout.ingest(pixels, heads, rings, counts, self.active),
+            Rings::Narrow(rings) => layout.ingest(pixels, blocks, rings, counts, self.active),
+            Rings::Wide(rings) => layout.ingest(pixels, blocks, rings, counts, self.active),
         };
         self.shared.active.store(self.active, Relaxed);
     }
@@ -403,7 +418,9 @@ impl ScarfWriter {
             Rings::Narrow(rings) => rings.fill(Entry::new(spare)),
             Rings::Wide(rings) => rings.fill(Entry::new(spare)),
         }
-        self.heads.fill(0);
+        for b in self.blocks.iter_mut() {
+            b.last = b.start;
+        }
         for c in self.shared.counts.iter() {
             c.store(0, Relaxed);
         }
@@ -428,16 +445,16 @@ impl Layout {
     fn ingest<E: Entry>(
         &self,
         pixels: &[u32],
-        heads: &mut [u8],
+        blocks: &mut [Block],
         rings: &mut [E],
         counts: &[AtomicU8],
         mut active: usize,
     ) -> usize {
-        let (row_of, n_pixels, n) = (self.row_of, self.n_pixels, self.fifo_len);
+        let (row_of, n_pixels, n) = (self.row_of, self.n_pixels, self.fifo_len as u32);
         let spare_local = self.local_offsets.len() as u32 - 1;
         let spare_entry = E::new(spare_local);
         let (cols, rows) = (&*self.cols, &*self.rows);
-        let (bases, offsets) = (&*self.bases, &*self.local_offsets);
+        let offsets = &*self.local_offsets;
         for &p in pixels {
             if p >= n_pixels {
                 continue;
@@ -450,7 +467,8 @@ impl Layout {
                     rows.get_unchecked(y as usize),
                 )
             };
-            let real = c.real && r.real;
+            // `&`, not `&&`: one select below instead of two branches.
+            let real = c.real & r.real;
             let own = r.own + c.own;
             // A pixel outside every real block feeds its own (pad) block's spare cell.
             let (centre, centre_entry) = if real {
@@ -458,29 +476,26 @@ impl Layout {
             } else {
                 (n_pixels + own, spare_entry)
             };
-            let blocks = [own, r.side + c.own, r.own + c.side, r.side + c.side];
-            for (k, b) in blocks.into_iter().enumerate() {
-                let b = b as usize;
-                // SAFETY: the axis tables only hold offsets inside the padded grid, which has
-                // heads.len() blocks of n ring entries each; heads stay in 0..n.
-                let head = unsafe { heads.get_unchecked_mut(b) };
-                let slot = if usize::from(*head) + 1 >= n {
-                    0
+            let fed = [own, r.side + c.own, r.own + c.side, r.side + c.side];
+            for (k, b) in fed.into_iter().enumerate() {
+                // SAFETY: the axis tables only hold indices inside the padded grid, which has
+                // blocks.len() blocks of n ring entries each; `last` stays in start..start + n.
+                let block = unsafe { blocks.get_unchecked_mut(b as usize) };
+                let next = block.last + 1;
+                block.last = if next == block.start + n {
+                    block.start
                 } else {
-                    *head + 1
+                    next
                 };
-                *head = slot;
-                let entry = unsafe { rings.get_unchecked_mut(b * n + usize::from(slot)) };
+                let entry = unsafe { rings.get_unchecked_mut(block.last as usize) };
                 let old = std::mem::replace(entry, if k == 0 { centre_entry } else { spare_entry });
                 let surround = old == spare_entry;
                 // SAFETY: a ring entry is a local index < block area (only ever written into a
                 // real block's ring, whose origin plus offset is a pixel of that block) or the
-                // spare value, whose base is the block's spare cell and offset 0; bases holds a
-                // pair per padded block and counts n_pixels + one spare cell per padded block.
-                let cell = unsafe {
-                    bases.get_unchecked(b)[usize::from(surround)]
-                        + offsets.get_unchecked(old.index())
-                };
+                // spare value, whose base is the block's spare cell and offset 0; counts holds
+                // n_pixels + one spare cell per padded block.
+                let cell = block.cells[usize::from(surround)]
+                    + unsafe { offsets.get_unchecked(old.index()) };
                 let cell = unsafe { counts.get_unchecked(cell as usize) };
                 let v = cell.load(Relaxed).wrapping_sub(1);
                 cell.store(v, Relaxed);
