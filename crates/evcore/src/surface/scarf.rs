@@ -439,6 +439,21 @@ impl ScarfWriter {
     }
 }
 
+/// How far ahead of the event being inserted its count cell is prefetched, in events.
+const PREFETCH_EVENTS: usize = 16;
+
+/// Hint that `at` will be read soon; never faults, so any address (even past the end) is fine.
+#[inline(always)]
+fn prefetch<T>(at: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch has no architectural effect and does not fault on any address.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(at.cast());
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = at;
+}
+
 impl Layout {
     /// The insert loop for one ring entry width; returns the new active-pixel total.
     #[inline(always)]
@@ -455,7 +470,12 @@ impl Layout {
         let spare_entry = E::new(spare_local);
         let (cols, rows) = (&*self.cols, &*self.rows);
         let offsets = &*self.local_offsets;
-        for &p in pixels {
+        for (i, &p) in pixels.iter().enumerate() {
+            // A noise event's count cell is a cache miss; asking for it a few events ahead lets
+            // the miss overlap the work in between.
+            if let Some(&ahead) = pixels.get(i + PREFETCH_EVENTS) {
+                prefetch(counts.as_ptr().wrapping_add(ahead as usize));
+            }
             if p >= n_pixels {
                 continue;
             }
