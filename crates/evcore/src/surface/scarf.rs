@@ -16,9 +16,9 @@
 //!   (the default 14 px block: 196), two otherwise. The spare value maps to a spare cell of the
 //!   block, past the count image, that absorbs the unconditional ±1 updates, so the hot loop has no
 //!   "is this a centre entry" branch (a select between one shared spare cell and origin + offset
-//!   compiled to one, taken at random on noise). One spare cell per block rather than one for all: most
-//!   evictions are surround entries, and a single shared cell chained every event's three or so
-//!   read-modify-writes through store forwarding (≈ 5 cycles each). Block-local entries and u8
+//!   compiled to one, taken at random on noise). One spare cell per block rather than one for
+//!   all: most evictions are surround entries, and a single shared cell chained every event's
+//!   three or so read-modify-writes into one dependency through memory. Block-local entries and u8
 //!   counts keep the rings and the count image at ≈ 1.4 MB at 1280×720 with 14 px blocks (1.9 MB
 //!   with two-byte entries, 3.8 MB with u32 pixel indices and u16 counts), which is what a stream
 //!   spread over the whole sensor (a textured background) misses the cache on;
@@ -283,7 +283,7 @@ impl Entry for u16 {
 }
 
 /// The rings in the narrowest entry that holds the spare value: a byte per entry up to a block
-/// area of 255 (every block up to 15×15 px, so the default 14 px), halving the rings' footprint.
+/// area of 255 (the default 14 px block: 196), halving the rings' footprint.
 #[derive(Debug)]
 enum Rings {
     Narrow(Box<[u8]>),
@@ -487,7 +487,7 @@ impl Layout {
                     rows.get_unchecked(y as usize),
                 )
             };
-            // `&`, not `&&`: one select below instead of two branches.
+            // `&`, not `&&`: one test of both flags instead of two branches.
             let real = c.real & r.real;
             let own = r.own + c.own;
             // A pixel outside every real block feeds its own (pad) block's spare cell.
