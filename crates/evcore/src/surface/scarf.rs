@@ -9,13 +9,19 @@
 //!
 //! Storage differs from the C++ in three ways, none visible in the result:
 //! - activity is a per-pixel u8 count of centre entries (active = count > 0) instead of a float
-//!   image updated by ±C, so no residue can build up; a pixel's count is at most N, so N ≤ 255;
-//! - a ring entry is a u16: the block-local index (row · block width + column) of a centre event,
-//!   or the spare value `block area` for a surround event. The spare value maps to a spare cell of
-//!   the count image that absorbs the unconditional ±1 updates, so the hot loop has no "is this a
-//!   centre entry" branch. Block-local u16 entries and u8 counts halve the rings and the count
-//!   image against pixel indices and u16 counts (≈ 1.8 MB instead of 3.6 MB at 1280×720), which is
-//!   what a stream spread over the whole sensor (a textured background) misses the cache on;
+//!   image updated by ±C, so no residue can build up; a pixel's count is at most N, so N ≤ 255
+//!   keeps it from ever wrapping;
+//! - a ring entry is the block-local index (row · block width + column) of a centre event, or the
+//!   spare value `block area` for a surround event: one byte while the block area is at most 255
+//!   (the default 14 px block: 196), two otherwise. The spare value maps to a spare cell of the
+//!   block, past the count image, that absorbs the unconditional ±1 updates, so the hot loop has no
+//!   "is this a centre entry" branch (a select between one shared spare cell and origin + offset
+//!   compiled to one, taken at random on noise). One spare cell per block rather than one for
+//!   all: most evictions are surround entries, and a single shared cell chained every event's
+//!   three or so read-modify-writes into one dependency through memory. Block-local entries and u8
+//!   counts keep the rings and the count image at ≈ 1.4 MB at 1280×720 with 14 px blocks (1.9 MB
+//!   with two-byte entries, 3.8 MB with u32 pixel indices and u16 counts), which is what a stream
+//!   spread over the whole sensor (a textured background) misses the cache on;
 //! - a missing neighbour block points at a dummy block whose ring only ever holds the spare value,
 //!   so every event does exactly four ring updates and the loop has no "is there a block" branch.
 //!
@@ -187,7 +193,8 @@ fn axis_table(
         .collect()
 }
 
-/// What readers see: the count image (plus one spare cell at index width·height) and the total.
+/// What readers see: the count image and the total. The cells past width·height are the writer's
+/// spare cells (one per padded block), never read.
 #[derive(Debug)]
 struct Shared {
     width: u32,
@@ -208,21 +215,79 @@ struct Shared {
 pub struct ScarfWriter {
     shared: Arc<Shared>,
     geometry: ScarfGeometry,
+    layout: Layout,
+    /// Per padded block: where its ring is, the slot written last and its count cells.
+    blocks: Box<[Block]>,
+    /// Per padded block, N entries: a centre event's block-local index or the spare value.
+    rings: Rings,
+    /// Writer-side copy of the active-pixel total, published after each batch.
+    active: usize,
+}
+
+/// The writer's fixed lookup tables: where an event's four blocks and their count cells are.
+#[derive(Debug)]
+struct Layout {
+    /// Pixels in the count image; spare cells follow.
+    n_pixels: u32,
+    /// FIFO length N.
+    fifo_len: usize,
     row_of: RowOf,
     cols: Box<[AxisEntry]>,
     rows: Box<[AxisEntry]>,
-    /// Per padded block, the slot written last (0..N); kept apart from the rings so this hot,
-    /// small array stays cached while the rings miss.
-    heads: Box<[u8]>,
-    /// Per padded block, N entries: a centre event's block-local index or the spare value.
-    rings: Box<[u16]>,
-    /// Per padded block, the pixel index of its top-left pixel (0 for pad blocks, whose rings
-    /// only hold the spare value).
-    origins: Box<[u32]>,
-    /// Pixel offset from a block's top-left pixel of each block-local index.
+    /// Pixel offset from a block's top-left pixel of each block-local index, then 0 for the spare
+    /// value (whose base is the spare cell itself).
     local_offsets: Box<[u32]>,
-    /// Writer-side copy of the active-pixel total, published after each batch.
-    active: usize,
+}
+
+/// One padded block's ring state and count cells, together so that an update reads one 16-byte
+/// record (and no ring index is multiplied out) rather than three arrays.
+#[derive(Debug, Clone, Copy)]
+struct Block {
+    /// Ring index of the slot written last, in start..start + N.
+    last: u32,
+    /// Ring index of the block's first slot.
+    start: u32,
+    /// The count cell a ring entry's offset starts from: [the pixel index of the block's top-left
+    /// pixel (0 for pad blocks, whose rings only hold the spare value), the block's spare cell],
+    /// indexed by "the entry is the spare value".
+    cells: [u32; 2],
+}
+
+/// A ring entry: a centre event's block-local index, or the spare value (the block area).
+trait Entry: Copy + Eq {
+    /// `local` ≤ block area, which the width was chosen to hold.
+    fn new(local: u32) -> Self;
+    fn index(self) -> usize;
+}
+
+impl Entry for u8 {
+    #[inline(always)]
+    fn new(local: u32) -> Self {
+        local as u8
+    }
+    #[inline(always)]
+    fn index(self) -> usize {
+        usize::from(self)
+    }
+}
+
+impl Entry for u16 {
+    #[inline(always)]
+    fn new(local: u32) -> Self {
+        local as u16
+    }
+    #[inline(always)]
+    fn index(self) -> usize {
+        usize::from(self)
+    }
+}
+
+/// The rings in the narrowest entry that holds the spare value: a byte per entry up to a block
+/// area of 255 (the default 14 px block: 196), halving the rings' footprint.
+#[derive(Debug)]
+enum Rings {
+    Narrow(Box<[u8]>),
+    Wide(Box<[u16]>),
 }
 
 /// A cheap, cloneable read handle; safe to use from any thread while the writer runs.
@@ -261,15 +326,33 @@ impl Scarf {
         let (bw, bh) = (geometry.block_w, geometry.block_h);
         let cols = axis_table(width, bw, geometry.grid_w, -1, 1, 1);
         let rows = axis_table(height, bh, geometry.grid_h, -1, padded_w as u32, bw);
-        let mut origins = vec![0u32; n_padded];
+        // Spare cells follow the count image, one per padded block: n_pixels + n_padded cells, far
+        // below u32::MAX for a grid within 16384².
+        let n = geometry.fifo_len;
+        let mut blocks: Vec<Block> = (0..n_padded)
+            .map(|b| Block {
+                last: b as u32 * n,
+                start: b as u32 * n,
+                cells: [0, (n_pixels + b) as u32],
+            })
+            .collect();
         for by in 0..geometry.grid_h {
             for bx in 0..geometry.grid_w {
                 let b = (by + 1) as usize * padded_w as usize + (bx + 1) as usize;
-                origins[b] = (bh / 2 + by * bh) * width + bw / 2 + bx * bw;
+                blocks[b].cells[0] = (bh / 2 + by * bh) * width + bw / 2 + bx * bw;
             }
         }
-        let local_offsets = (0..bw * bh).map(|l| l / bw * width + l % bw).collect();
-        let counts = (0..=n_pixels).map(|_| AtomicU8::new(0)).collect();
+        let area = bw * bh;
+        let local_offsets = (0..area)
+            .map(|l| l / bw * width + l % bw)
+            .chain([0])
+            .collect();
+        let rings = if area <= u32::from(u8::MAX) {
+            Rings::Narrow(vec![0; ring_words].into_boxed_slice())
+        } else {
+            Rings::Wide(vec![0; ring_words].into_boxed_slice())
+        };
+        let counts = (0..n_pixels + n_padded).map(|_| AtomicU8::new(0)).collect();
         let shared = Arc::new(Shared {
             width,
             height,
@@ -279,13 +362,16 @@ impl Scarf {
         let mut writer = ScarfWriter {
             shared: Arc::clone(&shared),
             geometry,
-            row_of: RowOf::new(width),
-            cols,
-            rows,
-            heads: vec![0; n_padded].into_boxed_slice(),
-            rings: vec![0; ring_words].into_boxed_slice(),
-            origins: origins.into_boxed_slice(),
-            local_offsets,
+            layout: Layout {
+                n_pixels: n_pixels as u32,
+                fifo_len: geometry.fifo_len as usize,
+                row_of: RowOf::new(width),
+                cols,
+                rows,
+                local_offsets,
+            },
+            blocks: blocks.into_boxed_slice(),
+            rings,
             active: 0,
         };
         writer.reset();
@@ -317,79 +403,24 @@ impl Scarf {
 impl ScarfWriter {
     /// Ingest events at rectified pixel indices; indices ≥ width·height are skipped.
     pub fn ingest(&mut self, pixels: &[u32]) {
-        let row_of = self.row_of;
-        let spare = self.shared.counts.len() as u32 - 1;
-        let spare_local = self.local_offsets.len() as u16;
-        let n = self.geometry.fifo_len as usize;
-        let counts = &*self.shared.counts;
-        let (cols, rows) = (&*self.cols, &*self.rows);
-        let (origins, offsets) = (&*self.origins, &*self.local_offsets);
-        let heads = &mut *self.heads;
-        let rings = &mut *self.rings;
-        let mut active = self.active;
-        for &p in pixels {
-            if p >= spare {
-                continue;
-            }
-            let (x, y) = row_of.split(p);
-            // SAFETY: p < width·height, so x < width = cols.len() and y < height = rows.len().
-            let (c, r) = unsafe {
-                (
-                    cols.get_unchecked(x as usize),
-                    rows.get_unchecked(y as usize),
-                )
-            };
-            let real = c.real && r.real;
-            let (centre, centre_local) = if real {
-                (p, (r.local + c.local) as u16)
-            } else {
-                (spare, spare_local)
-            };
-            let blocks = [
-                r.own + c.own,
-                r.side + c.own,
-                r.own + c.side,
-                r.side + c.side,
-            ];
-            for (k, b) in blocks.into_iter().enumerate() {
-                let b = b as usize;
-                // SAFETY: the axis tables only hold offsets inside the padded grid, which has
-                // heads.len() blocks of n ring entries each; heads stay in 0..n.
-                let head = unsafe { heads.get_unchecked_mut(b) };
-                let slot = if usize::from(*head) + 1 >= n {
-                    0
-                } else {
-                    *head + 1
-                };
-                *head = slot;
-                let entry = unsafe { rings.get_unchecked_mut(b * n + usize::from(slot)) };
-                let old = std::mem::replace(entry, if k == 0 { centre_local } else { spare_local });
-                // SAFETY: a ring entry is a local index < block area (only ever written into a
-                // real block's ring, whose origin plus offset is a pixel of that block) or the
-                // spare value; counts has spare + 1 cells.
-                let cell = if old == spare_local {
-                    spare
-                } else {
-                    unsafe { origins.get_unchecked(b) + offsets.get_unchecked(usize::from(old)) }
-                };
-                let cell = unsafe { counts.get_unchecked(cell as usize) };
-                let v = cell.load(Relaxed).wrapping_sub(1);
-                cell.store(v, Relaxed);
-                active -= usize::from(v == 0 && old != spare_local);
-            }
-            let cell = unsafe { counts.get_unchecked(centre as usize) };
-            let v = cell.load(Relaxed);
-            cell.store(v.wrapping_add(1), Relaxed);
-            active += usize::from(v == 0 && real);
-        }
-        self.active = active;
-        self.shared.active.store(active, Relaxed);
+        let (layout, blocks, counts) = (&self.layout, &mut *self.blocks, &*self.shared.counts);
+        self.active = match &mut self.rings {
+            Rings::Narrow(rings) => layout.ingest(pixels, blocks, rings, counts, self.active),
+            Rings::Wide(rings) => layout.ingest(pixels, blocks, rings, counts, self.active),
+        };
+        self.shared.active.store(self.active, Relaxed);
     }
 
     /// Empty every FIFO and the count image.
     pub fn reset(&mut self) {
-        self.rings.fill(self.local_offsets.len() as u16);
-        self.heads.fill(0);
+        let spare = self.layout.local_offsets.len() as u32 - 1;
+        match &mut self.rings {
+            Rings::Narrow(rings) => rings.fill(Entry::new(spare)),
+            Rings::Wide(rings) => rings.fill(Entry::new(spare)),
+        }
+        for b in self.blocks.iter_mut() {
+            b.last = b.start;
+        }
         for c in self.shared.counts.iter() {
             c.store(0, Relaxed);
         }
@@ -405,6 +436,98 @@ impl ScarfWriter {
         ScarfReader {
             shared: Arc::clone(&self.shared),
         }
+    }
+}
+
+/// How far ahead of the event being inserted its count cell is prefetched, in events.
+const PREFETCH_EVENTS: usize = 16;
+
+/// Hint that `at` will be read soon; never faults, so any address (even past the end) is fine.
+#[inline(always)]
+fn prefetch<T>(at: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch has no architectural effect and does not fault on any address.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(at.cast());
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = at;
+}
+
+impl Layout {
+    /// The insert loop for one ring entry width; returns the new active-pixel total.
+    #[inline(always)]
+    fn ingest<E: Entry>(
+        &self,
+        pixels: &[u32],
+        blocks: &mut [Block],
+        rings: &mut [E],
+        counts: &[AtomicU8],
+        mut active: usize,
+    ) -> usize {
+        let (row_of, n_pixels, n) = (self.row_of, self.n_pixels, self.fifo_len as u32);
+        let spare_local = self.local_offsets.len() as u32 - 1;
+        let spare_entry = E::new(spare_local);
+        let (cols, rows) = (&*self.cols, &*self.rows);
+        let offsets = &*self.local_offsets;
+        for (i, &p) in pixels.iter().enumerate() {
+            // A noise event's count cell is a cache miss; asking for it a few events ahead lets
+            // the miss overlap the work in between.
+            if let Some(&ahead) = pixels.get(i + PREFETCH_EVENTS) {
+                prefetch(counts.as_ptr().wrapping_add(ahead as usize));
+            }
+            if p >= n_pixels {
+                continue;
+            }
+            let (x, y) = row_of.split(p);
+            // SAFETY: p < width·height, so x < width = cols.len() and y < height = rows.len().
+            let (c, r) = unsafe {
+                (
+                    cols.get_unchecked(x as usize),
+                    rows.get_unchecked(y as usize),
+                )
+            };
+            // `&`, not `&&`: one test of both flags instead of two branches.
+            let real = c.real & r.real;
+            let own = r.own + c.own;
+            // A pixel outside every real block feeds its own (pad) block's spare cell.
+            let (centre, centre_entry) = if real {
+                (p, E::new(r.local + c.local))
+            } else {
+                (n_pixels + own, spare_entry)
+            };
+            let fed = [own, r.side + c.own, r.own + c.side, r.side + c.side];
+            for (k, b) in fed.into_iter().enumerate() {
+                // SAFETY: the axis tables only hold indices inside the padded grid, which has
+                // blocks.len() blocks of n ring entries each; `last` stays in start..start + n.
+                let block = unsafe { blocks.get_unchecked_mut(b as usize) };
+                let next = block.last + 1;
+                block.last = if next == block.start + n {
+                    block.start
+                } else {
+                    next
+                };
+                let entry = unsafe { rings.get_unchecked_mut(block.last as usize) };
+                let old = std::mem::replace(entry, if k == 0 { centre_entry } else { spare_entry });
+                let surround = old == spare_entry;
+                // SAFETY: a ring entry is a local index < block area (only ever written into a
+                // real block's ring, whose origin plus offset is a pixel of that block) or the
+                // spare value, whose base is the block's spare cell and offset 0; counts holds
+                // n_pixels + one spare cell per padded block.
+                let cell = block.cells[usize::from(surround)]
+                    + unsafe { offsets.get_unchecked(old.index()) };
+                let cell = unsafe { counts.get_unchecked(cell as usize) };
+                let v = cell.load(Relaxed).wrapping_sub(1);
+                cell.store(v, Relaxed);
+                active -= usize::from(v == 0 && !surround);
+            }
+            // SAFETY: centre is a pixel index or the own block's spare cell.
+            let cell = unsafe { counts.get_unchecked(centre as usize) };
+            let v = cell.load(Relaxed);
+            cell.store(v.wrapping_add(1), Relaxed);
+            active += usize::from(v == 0 && real);
+        }
+        active
     }
 }
 
@@ -601,6 +724,20 @@ mod tests {
         }
     }
 
+    /// Every pixel's count and the active total of `s` equal the reference's.
+    fn assert_same_counts(s: &Scarf, r: &Reference) {
+        let reader = s.reader();
+        let w = r.width;
+        let got: Vec<u16> = (0..r.counts.len() as u32)
+            .map(|p| reader.count(p % w, p / w))
+            .collect();
+        assert_eq!(got, r.counts);
+        assert_eq!(
+            reader.active_count(),
+            r.counts.iter().filter(|&&c| c > 0).count()
+        );
+    }
+
     #[test]
     fn agrees_with_a_plain_port_of_the_reference() {
         let (w, h) = (120u32, 90u32);
@@ -620,15 +757,9 @@ mod tests {
         s.writer().ingest(&pixels[..12_345]);
         s.writer().ingest(&pixels[12_345..]);
         pixels.iter().for_each(|&p| r.update(p));
-        let reader = s.reader();
-        let got: Vec<u16> = (0..w * h).map(|p| reader.count(p % w, p / w)).collect();
-        assert_eq!(got, r.counts);
-        assert_eq!(
-            reader.active_count(),
-            r.counts.iter().filter(|&&c| c > 0).count()
-        );
+        assert_same_counts(&s, &r);
         assert!(
-            reader.active_count() > 450,
+            s.reader().active_count() > 450,
             "the test must exercise a well-filled set"
         );
     }
@@ -648,6 +779,7 @@ mod tests {
             .collect();
         let mut s = Scarf::new(w, h, 22, 1.0).unwrap();
         assert_eq!(s.geometry().fifo_len, 242);
+        assert!(matches!(s.writer.rings, Rings::Wide(_)));
         let mut r = Reference::new(w, h, 22, 1.0);
         s.writer().ingest(&pixels[..40_000]);
         pixels[..40_000].iter().for_each(|&p| r.update(p));
@@ -658,13 +790,41 @@ mod tests {
         assert_eq!(s.reader().count(70, 60), 242);
         s.writer().ingest(&pixels[40_000..]);
         pixels[40_000..].iter().for_each(|&p| r.update(p));
-        let reader = s.reader();
-        let got: Vec<u16> = (0..w * h).map(|p| reader.count(p % w, p / w)).collect();
-        assert_eq!(got, r.counts);
-        assert_eq!(
-            reader.active_count(),
-            r.counts.iter().filter(|&&c| c > 0).count()
-        );
+        assert_same_counts(&s, &r);
+    }
+
+    /// One-byte ring entries at their limits: the default 14 px block (area 196) with the longest
+    /// FIFO a u8 count allows (N = 255), one pixel fired until its count is 255 = u8::MAX (a count
+    /// is at most N, so it cannot wrap), then noise and clusters that evict it again; on a grid
+    /// with border pixels outside every block (their events feed only pad blocks).
+    #[test]
+    fn one_byte_entries_agree_with_the_reference_at_the_largest_fifo() {
+        let (w, h) = (150u32, 110u32);
+        let mut s = Scarf::new(w, h, 14, 2.603).unwrap();
+        assert_eq!(s.geometry().fifo_len, 255);
+        assert!(matches!(s.writer.rings, Rings::Narrow(_)));
+        let mut r = Reference::new(w, h, 14, 2.603);
+        let mut rng = Rng::new(17);
+        let hot = 40 * w + 50;
+        let mut pixels = vec![hot; 400];
+        pixels.extend((0..90_000).map(|i| match i % 4 {
+            0 => rng.below(u64::from(w * h)) as u32,
+            1 => 40 * w + 45 + rng.below(12) as u32,
+            2 => hot,
+            _ => (30 + rng.below(40) as u32) * w + 20 + rng.below(60) as u32,
+        }));
+        s.writer().ingest(&pixels[..400]);
+        pixels[..400].iter().for_each(|&p| r.update(p));
+        assert_eq!(s.reader().count(50, 40), 255);
+        assert_same_counts(&s, &r);
+        for chunk in pixels[400..].chunks(7_777) {
+            s.writer().ingest(chunk);
+            chunk.iter().for_each(|&p| r.update(p));
+            assert_same_counts(&s, &r);
+        }
+        // A 16 px block (area 256) does not leave room for the spare value in a byte.
+        let wide = Scarf::new(w, h, 16, 1.0).unwrap();
+        assert!(matches!(wide.writer.rings, Rings::Wide(_)));
     }
 
     #[test]
