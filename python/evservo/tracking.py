@@ -126,10 +126,11 @@ class Tracker:
             ``lost_below`` and is trusted again from ``relock_above`` on (default: the core's,
             calibrated in benches/RESULTS.md "Confidence and loss").
         search_min_t: while the object is partly out of view, a search step moves to its best candidate only
-            when that candidate beats staying put by this many standard errors of the per-point gains
-            (noise-level wins ratchet small, far objects at the border; benches/RESULTS.md, issue 13 round
-            7); with it on, the pose is also held after an event dropout until the fresh field has as many
-            fired pixels as S* has points. Default None: 3 for "edft+", 0 (the paper's plain argmin) else.
+            when that candidate beats staying put by this many standard errors of the per-point gains in
+            LM's robust loss (noise-level wins ratchet small, far objects at the border; benches/RESULTS.md,
+            issue 13 rounds 7 and 8); with it on, the pose is also held after an event dropout until the
+            fresh field has as many fired pixels as S* has points. Default None: 3 for "edft+", 0 (the
+            paper's plain argmin) else.
 
     Every estimate carries ``confidence`` (0–1: how much better than chance the events support the
     pose) and ``lost`` (the pose is not to be trusted: not yet confirmed by an update, confidence

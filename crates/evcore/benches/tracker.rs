@@ -14,7 +14,7 @@ use evcore::pointset::{extract_point_set, PointSetParams};
 use evcore::rng::Rng;
 use evcore::solve::cost::{centroid, Pinhole, Rigid32};
 use evcore::solve::lm::{lm_pyramid, LmParams};
-use evcore::solve::search::{axis_steps, search_step};
+use evcore::solve::search::{axis_steps, search_step, Gate};
 use evcore::solve::SolverMode;
 use evcore::tracker::{TrackerConfig, TrackerCore};
 use evcore::{Camera, EventBatch, Roi};
@@ -147,7 +147,13 @@ fn bench(c: &mut Criterion<BenchClock>) {
     let deltas = axis_steps(&pins[0], &off, &points, &pivot, 8);
     // EDFT⁺'s default at the border (min_t 3): the same step with the significance test of its
     // best candidate.
-    for (name, min_t) in [("search_step", 0.0), ("search_step_min_t3", 3.0)] {
+    for (name, gate) in [
+        ("search_step", None),
+        (
+            "search_step_min_t3",
+            Some(Gate::new(3.0, &LmParams::default())),
+        ),
+    ] {
         c.bench_function(name, |b| {
             b.iter(|| {
                 search_step(
@@ -157,7 +163,7 @@ fn bench(c: &mut Criterion<BenchClock>) {
                     &points,
                     &pivot,
                     &deltas,
-                    min_t,
+                    gate,
                 )
             })
         });

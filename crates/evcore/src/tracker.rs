@@ -35,7 +35,7 @@ use crate::se3::unit_twist;
 use crate::se3::Pose;
 use crate::solve::cost::{apply_increment, centroid, cost_stats, Pinhole, Rigid32, ViewMask};
 use crate::solve::lm::{lm_pyramid, LmParams, LmReport};
-use crate::solve::search::{axis_steps, search_step};
+use crate::solve::search::{axis_steps, search_step, Gate};
 use crate::solve::{Schedule, SolverMode, StepKind};
 use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
 use crate::templates::{acquisition_score, camera_direction_o, TemplateBank, ACQUISITION_MARGIN};
@@ -93,8 +93,9 @@ pub struct TrackerConfig {
     pub held_axes_o: Vec<(Vector3<f64>, Vector3<f64>)>,
     /// While S* is not wholly in view (the outline is cut by the image border; see
     /// `FULL_VIEW_FRACTION`), a search step moves to its best candidate only when that candidate
-    /// beats the null one by at least this many standard errors of the per-point gains (see
-    /// [`crate::solve::search::search_step`]); 0 = the paper's plain argmin everywhere. With it on,
+    /// beats the null one by at least this many standard errors of the per-point gains in LM's
+    /// robust loss (`lm`; see [`crate::solve::search::Gate`]); 0 = the paper's plain argmin
+    /// everywhere. With it on,
     /// the steps after an event dropout also hold the pose until the fresh field has as many fired
     /// pixels as S* has points. None: the solver's default ([`SolverMode::default_search_min_t`]:
     /// 3 for EDFT⁺, 0 for EDOPTS and EDFT).
@@ -1194,7 +1195,7 @@ impl Solver {
                     // LM undoes a noise-level search move, and under occlusion the test held back
                     // the search steps that kept the pose on the object (objects suite, mug at
                     // 0.6 m 30 % occluded: 3.2 mm plain, 23 mm with the test everywhere).
-                    if whole { 0.0 } else { min_t },
+                    (!whole).then(|| Gate::new(min_t, &self.config.lm)),
                 );
                 match &self.last_lm {
                     Some(lm) if lm.n_held > 0 && out.candidate > 0 => {

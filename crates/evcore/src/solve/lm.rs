@@ -99,7 +99,7 @@ impl LmReport {
 
 /// (ρ(r), weight ρ'(r)/r) of the robust loss with threshold k.
 #[inline]
-fn robust_loss(kind: Robust, r: f32, k: f32) -> (f32, f32) {
+pub(crate) fn robust_loss(kind: Robust, r: f32, k: f32) -> (f32, f32) {
     match kind {
         Robust::Huber if r <= k => (0.5 * r * r, 1.0),
         Robust::Huber => (k * (r - 0.5 * k), k / r),
