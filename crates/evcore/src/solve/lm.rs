@@ -125,35 +125,61 @@ fn robust_cost(
         .sum()
 }
 
-/// Normal equations (H, g) and robust cost at `pose`.
-fn normal_equations(
+/// A model point at some pose: its camera-frame position and the map's (value, ∂/∂u, ∂/∂v) at its
+/// projection, or None when it does not project.
+#[derive(Debug, Clone, Copy)]
+struct Sampled {
+    p: [f32; 3],
+    at: Option<[f32; 3]>,
+}
+
+/// Projects `points` at `pose` and samples the map with its slope at each, into `out` (cleared
+/// first); returns their robust cost, the same sum as [`robust_cost`] bit for bit (the value of
+/// `sample_grad` is `sample`'s, and the terms are added in the same order).
+fn sample_points(
     map: &impl CostMap,
     pin: &Pinhole,
     pose: &Pose,
     points: &[[f32; 3]],
-    pivot: [f32; 3],
     params: &LmParams,
-) -> (Matrix6<f64>, Vector6<f64>, f64) {
+    out: &mut Vec<Sampled>,
+) -> f64 {
     let rig = Rigid32::from_pose(pose);
     let far = map.max_value();
+    let (kind, k) = (params.robust, params.robust_px);
+    out.clear();
+    let mut cost = 0.0f64;
+    for &x in points {
+        let p = rig.apply(x);
+        let at = pin.project(p).map(|(u, v)| map.sample_grad(u, v));
+        cost += f64::from(robust_loss(kind, at.map_or(far, |a| a[0]), k).0);
+        out.push(Sampled { p, at });
+    }
+    cost
+}
+
+/// Normal equations (H, g) of the points `sampled` (see [`sample_points`]) for increments about
+/// `pivot`. Sampling and solving are separate passes so that an accepted LM step, whose candidate
+/// pose was already sampled to judge it, forms its normal equations without sampling again.
+fn normal_equations(
+    pin: &Pinhole,
+    sampled: &[Sampled],
+    pivot: [f32; 3],
+    params: &LmParams,
+) -> (Matrix6<f64>, Vector6<f64>) {
     let (kind, k) = (params.robust, params.robust_px);
     // Accumulate in f32 per point, f64 across points: the sum over ~1000 points is where precision goes.
     let mut h = [0.0f64; 21];
     let mut g = [0.0f64; 6];
-    let mut cost = 0.0f64;
-    for &x in points {
-        let p = rig.apply(x);
-        let Some((u, v)) = pin.project(p) else {
-            cost += f64::from(robust_loss(kind, far, k).0);
+    for s in sampled {
+        let Some([r, gu, gv]) = s.at else {
             continue;
         };
-        let [r, gu, gv] = map.sample_grad(u, v);
-        let (rho, w) = robust_loss(kind, r, k);
-        cost += f64::from(rho);
+        let (_, w) = robust_loss(kind, r, k);
         if (gu == 0.0 && gv == 0.0) || w == 0.0 {
             continue;
         }
-        let ju = super::cost::image_jacobian(pin, p, pivot);
+        let ju = super::cost::image_jacobian(pin, s.p, pivot);
         let j: [f32; 6] = std::array::from_fn(|c| gu * ju[0][c] + gv * ju[1][c]);
         let mut idx = 0;
         for a in 0..6 {
@@ -174,7 +200,7 @@ fn normal_equations(
             idx += 1;
         }
     }
-    (hm, Vector6::from_column_slice(&g), cost)
+    (hm, Vector6::from_column_slice(&g))
 }
 
 /// The normal equations seen in scaled coordinates (translation ÷ `radius_m`): eigenvalues
@@ -269,8 +295,8 @@ struct LevelRun {
     iterations: u32,
     obs: Option<Observability>,
     /// The robust cost (sum over `points`) at the starting pose and at `pose`: each is
-    /// `robust_cost` of that pose bit for bit, having been formed by it or by
-    /// `normal_equations`, which add the same per-point values in the same order.
+    /// `robust_cost` of that pose bit for bit, having been formed by `sample_points`, which adds
+    /// the same per-point values in the same order.
     start_cost: f64,
     cost: f64,
 }
@@ -292,7 +318,11 @@ fn lm_level_costed(
         let c = pose * nalgebra::Point3::from(*pivot_o);
         [c.x as f32, c.y as f32, c.z as f32]
     };
-    let (h, mut g, mut cost) = normal_equations(map, pin, &pose, points, pivot_of(&pose), params);
+    // The points sampled at `pose`, and at the candidate being judged.
+    let mut at_pose = Vec::with_capacity(points.len());
+    let mut at_candidate = Vec::with_capacity(points.len());
+    let mut cost = sample_points(map, pin, &pose, points, params, &mut at_pose);
+    let (h, mut g) = normal_equations(pin, &at_pose, pivot_of(&pose), params);
     let start_cost = cost;
     // The cost at `pose` as it moves (`cost` itself is only refreshed with the normal equations).
     let mut cost_at_pose = cost;
@@ -312,7 +342,7 @@ fn lm_level_costed(
         let step = obs.step(&g, mu);
         let pivot_c = pose * nalgebra::Point3::from(*pivot_o);
         let candidate = super::cost::apply_increment(&pose, &step, &pivot_c.coords);
-        let new_cost = robust_cost(map, pin, &candidate, points, params);
+        let new_cost = sample_points(map, pin, &candidate, points, params, &mut at_candidate);
         if new_cost.is_finite() && new_cost < cost {
             pose = candidate;
             cost_at_pose = new_cost;
@@ -322,11 +352,12 @@ fn lm_level_costed(
             {
                 break;
             }
-            let (h, g2, c2) = normal_equations(map, pin, &pose, points, pivot_of(&pose), params);
+            std::mem::swap(&mut at_pose, &mut at_candidate);
+            let (h, g2) = normal_equations(pin, &at_pose, pivot_of(&pose), params);
             if h.diagonal().max() <= 0.0 {
                 break;
             }
-            (g, cost) = (g2, c2);
+            (g, cost) = (g2, new_cost);
             obs = Observability::new(&h, radius_m, params.weak_ratio);
         } else {
             mu *= 10.0;
