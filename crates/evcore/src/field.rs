@@ -290,18 +290,17 @@ impl FieldLevel {
                     let ax = _mm256_sub_ps(x, _mm256_cvtepi32_ps(ix));
                     let ay = _mm256_sub_ps(y, _mm256_cvtepi32_ps(iy));
                     let idx = _mm256_add_epi32(_mm256_mullo_epi32(iy, s), ix);
-                    // The two horizontal taps of a lane are adjacent: one 8-byte gather element per
-                    // lane and row, lanes 0, 1, 4, 5 in one gather and 2, 3, 6, 7 in the other, so
-                    // that splitting left from right taps within 128-bit halves restores the order.
-                    let split =
-                        _mm256_permutevar8x32_epi32(idx, _mm256_setr_epi32(0, 1, 4, 5, 2, 3, 6, 7));
-                    let (ip, iq) = (
-                        _mm256_castsi256_si128(split),
-                        _mm256_extracti128_si256::<1>(split),
-                    );
+                    let mut at = [0i32; 8];
+                    _mm256_storeu_si256(at.as_mut_ptr().cast(), idx);
+                    // The two horizontal taps of a lane are adjacent: one 8-byte load per lane and
+                    // row, two lanes to a 128-bit half, then split into left and right taps.
+                    let pairs = |row: *const f32, j: usize| {
+                        let lo = _mm_load_sd(row.add(at[j] as usize).cast());
+                        _mm_castpd_ps(_mm_loadh_pd(lo, row.add(at[j + 1] as usize).cast()))
+                    };
                     let taps = |row: *const f32| {
-                        let p = _mm256_castsi256_ps(_mm256_i32gather_epi64::<4>(row.cast(), ip));
-                        let q = _mm256_castsi256_ps(_mm256_i32gather_epi64::<4>(row.cast(), iq));
+                        let p = _mm256_set_m128(pairs(row, 4), pairs(row, 0));
+                        let q = _mm256_set_m128(pairs(row, 6), pairs(row, 2));
                         (
                             _mm256_shuffle_ps::<0b10_00_10_00>(p, q),
                             _mm256_shuffle_ps::<0b11_01_11_01>(p, q),
