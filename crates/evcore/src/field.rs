@@ -330,6 +330,69 @@ impl FieldLevel {
         }
     }
 
+    /// [`Self::sample_slope`] at the eight points in the lanes of `u` and `v` when every one of
+    /// their cells lies wholly inside the roi (None otherwise: the caller samples them one by one).
+    /// Each lane's cell, weights, value and slope are formed by the same operations in the same
+    /// order as in `sample_slope`, so the results are the same bit for bit; the four taps take one
+    /// gather each.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub(crate) fn sample_slope8_avx2(
+        &self,
+        u: std::arch::x86_64::__m256,
+        v: std::arch::x86_64::__m256,
+    ) -> Option<[std::arch::x86_64::__m256; 3]> {
+        use std::arch::x86_64::*;
+        let x = _mm256_sub_ps(u, _mm256_set1_ps(self.roi.x0 as f32));
+        let y = _mm256_sub_ps(v, _mm256_set1_ps(self.roi.y0 as f32));
+        let (w, h) = (self.roi.width as f32, self.roi.height as f32);
+        let zero = _mm256_setzero_ps();
+        // Ordered comparisons: NaN fails every one, as in `cell`.
+        let inside = _mm256_and_ps(
+            _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_GE_OQ>(x, zero),
+                _mm256_cmp_ps::<_CMP_GE_OQ>(y, zero),
+            ),
+            _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_LT_OQ>(x, _mm256_set1_ps(w - 1.0)),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(y, _mm256_set1_ps(h - 1.0)),
+            ),
+        );
+        if _mm256_movemask_ps(inside) != 0xFF {
+            return None;
+        }
+        // Non-negative and in range inside the roi: truncation is the floor.
+        let (ix, iy) = (_mm256_cvttps_epi32(x), _mm256_cvttps_epi32(y));
+        let ax = _mm256_sub_ps(x, _mm256_cvtepi32_ps(ix));
+        let ay = _mm256_sub_ps(y, _mm256_cvtepi32_ps(iy));
+        let stride = self.roi.width as usize;
+        let idx = _mm256_add_epi32(_mm256_mullo_epi32(iy, _mm256_set1_epi32(stride as i32)), ix);
+        let val = self.value.as_ptr();
+        // SAFETY: every lane's cell lies inside the roi, so idx + stride + 1 < value.len().
+        let (v00, v10, v01, v11) = unsafe {
+            (
+                _mm256_i32gather_ps::<4>(val, idx),
+                _mm256_i32gather_ps::<4>(val.add(1), idx),
+                _mm256_i32gather_ps::<4>(val.add(stride), idx),
+                _mm256_i32gather_ps::<4>(val.add(stride + 1), idx),
+            )
+        };
+        let top = _mm256_add_ps(v00, _mm256_mul_ps(ax, _mm256_sub_ps(v10, v00)));
+        let bottom = _mm256_add_ps(v01, _mm256_mul_ps(ax, _mm256_sub_ps(v11, v01)));
+        let value = _mm256_add_ps(top, _mm256_mul_ps(ay, _mm256_sub_ps(bottom, top)));
+        let (d10, d01) = (_mm256_sub_ps(v10, v00), _mm256_sub_ps(v01, v00));
+        let gu = _mm256_add_ps(
+            d10,
+            _mm256_mul_ps(ay, _mm256_sub_ps(_mm256_sub_ps(v11, v01), d10)),
+        );
+        let gv = _mm256_add_ps(
+            d01,
+            _mm256_mul_ps(ax, _mm256_sub_ps(_mm256_sub_ps(v11, v10), d01)),
+        );
+        Some([value, gu, gv])
+    }
+
     /// Locates the bilinear cell of (u, v): fully inside (fast path), straddling the roi border,
     /// or out of reach of every pixel.
     #[inline]

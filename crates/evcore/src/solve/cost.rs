@@ -46,6 +46,21 @@ pub trait CostMap {
     ) {
         self.add_star(u, v, du, dv, sums)
     }
+    /// [`Self::sample_grad`] at the eight points in the lanes of `u` and `v`, for callers compiled
+    /// for AVX2: a map may return the same values from a vector path; None (the default, and
+    /// whenever a map has no vector path for these points) sends the caller to `sample_grad`.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn sample_grad8_avx2(
+        &self,
+        _u: std::arch::x86_64::__m256,
+        _v: std::arch::x86_64::__m256,
+    ) -> Option<[std::arch::x86_64::__m256; 3]> {
+        None
+    }
 }
 
 /// Points closer to the camera plane than this are treated as unprojectable (metres).
@@ -320,6 +335,16 @@ impl CostMap for crate::field::FieldLevel {
     ) {
         // SAFETY: the caller guarantees AVX2.
         unsafe { crate::field::FieldLevel::add_star_avx2(self, u, v, du, dv, sums) }
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn sample_grad8_avx2(
+        &self,
+        u: std::arch::x86_64::__m256,
+        v: std::arch::x86_64::__m256,
+    ) -> Option<[std::arch::x86_64::__m256; 3]> {
+        // SAFETY: the caller guarantees AVX2.
+        unsafe { crate::field::FieldLevel::sample_slope8_avx2(self, u, v) }
     }
 }
 

@@ -125,35 +125,178 @@ fn robust_cost(
         .sum()
 }
 
-/// Normal equations (H, g) and robust cost at `pose`.
-fn normal_equations(
-    map: &impl CostMap,
+/// A model point at some pose: its camera-frame position and the map's (value, ∂/∂u, ∂/∂v) at its
+/// projection, or None when it does not project.
+#[derive(Debug, Clone, Copy)]
+struct Sampled {
+    p: [f32; 3],
+    at: Option<[f32; 3]>,
+}
+
+/// Projects `points` at `pose` and samples the map with its slope at each, into `out` (cleared
+/// first); returns their robust cost, the same sum as [`robust_cost`] bit for bit (the value of
+/// `sample_grad` is `sample`'s, and the terms are added in the same order).
+fn sample_points<M: CostMap>(
+    map: &M,
     pin: &Pinhole,
     pose: &Pose,
     points: &[[f32; 3]],
-    pivot: [f32; 3],
     params: &LmParams,
-) -> (Matrix6<f64>, Vector6<f64>, f64) {
+    out: &mut Vec<Sampled>,
+) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        return unsafe { sample_points_avx2(map, pin, pose, points, params, out) };
+    }
+    sample_points_in::<M, false>(map, pin, pose, points, params, out)
+}
+
+/// [`sample_points`] compiled for AVX2, eight points at a time where the map has a vector path.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn sample_points_avx2<M: CostMap>(
+    map: &M,
+    pin: &Pinhole,
+    pose: &Pose,
+    points: &[[f32; 3]],
+    params: &LmParams,
+    out: &mut Vec<Sampled>,
+) -> f64 {
+    sample_points_in::<M, true>(map, pin, pose, points, params, out)
+}
+
+/// The body of [`sample_points`]; `AVX2` (only in [`sample_points_avx2`]) takes eight points at a
+/// time through [`sampled8_avx2`] wherever it can.
+#[inline(always)]
+fn sample_points_in<M: CostMap, const AVX2: bool>(
+    map: &M,
+    pin: &Pinhole,
+    pose: &Pose,
+    points: &[[f32; 3]],
+    params: &LmParams,
+    out: &mut Vec<Sampled>,
+) -> f64 {
     let rig = Rigid32::from_pose(pose);
     let far = map.max_value();
+    let (kind, k) = (params.robust, params.robust_px);
+    out.clear();
+    let loss = |at: Option<[f32; 3]>| f64::from(robust_loss(kind, at.map_or(far, |a| a[0]), k).0);
+    let one = |x: [f32; 3], out: &mut Vec<Sampled>| {
+        let p = rig.apply(x);
+        let at = pin.project(p).map(|(u, v)| map.sample_grad(u, v));
+        out.push(Sampled { p, at });
+        loss(at)
+    };
+    let mut cost = 0.0f64;
+    let mut rest = points;
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 {
+        let chunks = points.chunks_exact(8);
+        rest = chunks.remainder();
+        for chunk in chunks {
+            // SAFETY: `AVX2` is only set by `sample_points_avx2`, which runs on CPUs with AVX2.
+            match unsafe { sampled8_avx2(map, pin, &rig, chunk) } {
+                Some(eight) => {
+                    for s in eight {
+                        cost += loss(s.at);
+                        out.push(s);
+                    }
+                }
+                None => {
+                    for &x in chunk {
+                        cost += one(x, out);
+                    }
+                }
+            }
+        }
+    }
+    for &x in rest {
+        cost += one(x, out);
+    }
+    cost
+}
+
+/// The eight points of `chunk` warped by `rig`, projected and sampled as [`sample_points`] does one
+/// by one (the same operations in the same order per lane, so the same bits), when all eight
+/// project and the map samples them in a vector; None otherwise.
+///
+/// # Safety
+/// The CPU must have AVX2, and `chunk` must hold eight points.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn sampled8_avx2<M: CostMap>(
+    map: &M,
+    pin: &Pinhole,
+    rig: &Rigid32,
+    chunk: &[[f32; 3]],
+) -> Option<[Sampled; 8]> {
+    use std::arch::x86_64::*;
+    debug_assert_eq!(chunk.len(), 8);
+    let base = chunk.as_ptr().cast::<f32>();
+    let lanes = _mm256_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21);
+    // SAFETY: the gathers read coordinate c of the eight points, within `chunk`.
+    let coord = |c: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(c), lanes) };
+    let (x, y, z) = (coord(0), coord(1), coord(2));
+    let s = _mm256_set1_ps;
+    // r[3i]·x + r[3i+1]·y + r[3i+2]·z + t[i], added left to right as in `Rigid32::apply`.
+    let row = |i: usize| {
+        let r = &rig.r[3 * i..3 * i + 3];
+        let xy = _mm256_add_ps(_mm256_mul_ps(s(r[0]), x), _mm256_mul_ps(s(r[1]), y));
+        _mm256_add_ps(_mm256_add_ps(xy, _mm256_mul_ps(s(r[2]), z)), s(rig.t[i]))
+    };
+    let p = [row(0), row(1), row(2)];
+    // `Pinhole::project` refuses a depth below the minimum (and takes NaN, which the map refuses).
+    if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(
+        p[2],
+        s(super::cost::MIN_DEPTH_M),
+    )) != 0
+    {
+        return None;
+    }
+    let iz = _mm256_div_ps(s(1.0), p[2]);
+    let u = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(s(pin.fx), p[0]), iz), s(pin.cx));
+    let v = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(s(pin.fy), p[1]), iz), s(pin.cy));
+    // SAFETY: the CPU has AVX2.
+    let at = unsafe { map.sample_grad8_avx2(u, v) }?;
+    let mut lanes_out = [[0.0f32; 8]; 6];
+    for (dst, src) in lanes_out
+        .iter_mut()
+        .zip([p[0], p[1], p[2], at[0], at[1], at[2]])
+    {
+        // SAFETY: eight lanes into eight floats.
+        unsafe { _mm256_storeu_ps(dst.as_mut_ptr(), src) };
+    }
+    let [px, py, pz, r, gu, gv] = lanes_out;
+    Some(std::array::from_fn(|i| Sampled {
+        p: [px[i], py[i], pz[i]],
+        at: Some([r[i], gu[i], gv[i]]),
+    }))
+}
+
+/// Normal equations (H, g) of the points `sampled` (see [`sample_points`]) for increments about
+/// `pivot`. Sampling and solving are separate passes so that an accepted LM step, whose candidate
+/// pose was already sampled to judge it, forms its normal equations without sampling again.
+fn normal_equations(
+    pin: &Pinhole,
+    sampled: &[Sampled],
+    pivot: [f32; 3],
+    params: &LmParams,
+) -> (Matrix6<f64>, Vector6<f64>) {
     let (kind, k) = (params.robust, params.robust_px);
     // Accumulate in f32 per point, f64 across points: the sum over ~1000 points is where precision goes.
     let mut h = [0.0f64; 21];
     let mut g = [0.0f64; 6];
-    let mut cost = 0.0f64;
-    for &x in points {
-        let p = rig.apply(x);
-        let Some((u, v)) = pin.project(p) else {
-            cost += f64::from(robust_loss(kind, far, k).0);
+    for s in sampled {
+        let Some([r, gu, gv]) = s.at else {
             continue;
         };
-        let [r, gu, gv] = map.sample_grad(u, v);
-        let (rho, w) = robust_loss(kind, r, k);
-        cost += f64::from(rho);
+        let (_, w) = robust_loss(kind, r, k);
         if (gu == 0.0 && gv == 0.0) || w == 0.0 {
             continue;
         }
-        let ju = super::cost::image_jacobian(pin, p, pivot);
+        let ju = super::cost::image_jacobian(pin, s.p, pivot);
         let j: [f32; 6] = std::array::from_fn(|c| gu * ju[0][c] + gv * ju[1][c]);
         let mut idx = 0;
         for a in 0..6 {
@@ -174,7 +317,7 @@ fn normal_equations(
             idx += 1;
         }
     }
-    (hm, Vector6::from_column_slice(&g), cost)
+    (hm, Vector6::from_column_slice(&g))
 }
 
 /// The normal equations seen in scaled coordinates (translation ÷ `radius_m`): eigenvalues
@@ -269,8 +412,8 @@ struct LevelRun {
     iterations: u32,
     obs: Option<Observability>,
     /// The robust cost (sum over `points`) at the starting pose and at `pose`: each is
-    /// `robust_cost` of that pose bit for bit, having been formed by it or by
-    /// `normal_equations`, which add the same per-point values in the same order.
+    /// `robust_cost` of that pose bit for bit, having been formed by `sample_points`, which adds
+    /// the same per-point values in the same order.
     start_cost: f64,
     cost: f64,
 }
@@ -292,7 +435,11 @@ fn lm_level_costed(
         let c = pose * nalgebra::Point3::from(*pivot_o);
         [c.x as f32, c.y as f32, c.z as f32]
     };
-    let (h, mut g, mut cost) = normal_equations(map, pin, &pose, points, pivot_of(&pose), params);
+    // The points sampled at `pose`, and at the candidate being judged.
+    let mut at_pose = Vec::with_capacity(points.len());
+    let mut at_candidate = Vec::with_capacity(points.len());
+    let mut cost = sample_points(map, pin, &pose, points, params, &mut at_pose);
+    let (h, mut g) = normal_equations(pin, &at_pose, pivot_of(&pose), params);
     let start_cost = cost;
     // The cost at `pose` as it moves (`cost` itself is only refreshed with the normal equations).
     let mut cost_at_pose = cost;
@@ -312,7 +459,7 @@ fn lm_level_costed(
         let step = obs.step(&g, mu);
         let pivot_c = pose * nalgebra::Point3::from(*pivot_o);
         let candidate = super::cost::apply_increment(&pose, &step, &pivot_c.coords);
-        let new_cost = robust_cost(map, pin, &candidate, points, params);
+        let new_cost = sample_points(map, pin, &candidate, points, params, &mut at_candidate);
         if new_cost.is_finite() && new_cost < cost {
             pose = candidate;
             cost_at_pose = new_cost;
@@ -322,11 +469,12 @@ fn lm_level_costed(
             {
                 break;
             }
-            let (h, g2, c2) = normal_equations(map, pin, &pose, points, pivot_of(&pose), params);
+            std::mem::swap(&mut at_pose, &mut at_candidate);
+            let (h, g2) = normal_equations(pin, &at_pose, pivot_of(&pose), params);
             if h.diagonal().max() <= 0.0 {
                 break;
             }
-            (g, cost) = (g2, c2);
+            (g, cost) = (g2, new_cost);
             obs = Observability::new(&h, radius_m, params.weak_ratio);
         } else {
             mu *= 10.0;
@@ -575,6 +723,79 @@ mod tests {
         for kind in [Robust::Huber, Robust::Tukey] {
             let (rho, w) = robust_loss(kind, 0.01, k);
             assert!((rho - 0.5e-4).abs() < 1e-7 && (w - 1.0).abs() < 1e-4);
+        }
+    }
+
+    /// The AVX2 sampling must give the scalar sampling's positions, values, slopes and cost bit
+    /// for bit: chunks wholly inside the field, chunks across its border or off it, points behind
+    /// the camera, and the tail after the last chunk of eight.
+    #[test]
+    fn sampling_eight_at_a_time_matches_one_at_a_time() {
+        let cam = Camera::imx636();
+        let pin = Pinhole::at_level(&cam, 0);
+        let truth = Isometry3::new(Vector3::new(0.01, 0.02, 0.6), Vector3::new(0.3, 0.4, 0.1));
+        let (mut points, _) = testing::visible_box_model(&truth);
+        points.truncate(points.len() / 8 * 8 + 5);
+        // The roi covers the left part of the projected box only.
+        let roi = crate::image::Roi {
+            x0: 420,
+            y0: 150,
+            width: 260,
+            height: 420,
+        };
+        let mut rng = crate::rng::Rng::new(11);
+        let mask: Vec<u8> = (0..roi.area())
+            .map(|_| u8::from(rng.below(40) == 0))
+            .collect();
+        let mut field =
+            crate::field::DistanceField::new(crate::field::FieldParams::default()).expect("field");
+        field.build(&mask, roi, 1).expect("build");
+        let map = field.level(0);
+        let params = LmParams::default();
+        let pivot = centroid(&points);
+        let bits = |s: &[Sampled]| -> Vec<[u32; 6]> {
+            s.iter()
+                .map(|s| {
+                    let a = s.at.unwrap_or([f32::NAN; 3]);
+                    [s.p[0], s.p[1], s.p[2], a[0], a[1], a[2]].map(f32::to_bits)
+                })
+                .collect()
+        };
+        let (mut vector_chunks, mut fallback_chunks) = (0, 0);
+        for i in 0..40 {
+            let s = f64::from(i) / 40.0;
+            let mut pose = apply_increment(
+                &truth,
+                &Vector6::new(0.02 * s - 0.01, 0.03 * s, 0.0, 0.2 * s, -0.1 * s, 0.3 * s),
+                &(truth * nalgebra::Point3::from(pivot)).coords,
+            );
+            if i == 39 {
+                // Half the box behind the camera plane.
+                pose = Isometry3::translation(0.0, 0.0, -0.6) * pose;
+            }
+            let (mut one, mut wide) = (Vec::new(), Vec::new());
+            let c1 = sample_points_in::<_, false>(map, &pin, &pose, &points, &params, &mut one);
+            let c8 = sample_points(map, &pin, &pose, &points, &params, &mut wide);
+            assert_eq!(c1.to_bits(), c8.to_bits(), "pose {i}");
+            assert_eq!(bits(&one), bits(&wide), "pose {i}");
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") {
+                let rig = Rigid32::from_pose(&pose);
+                for chunk in points.chunks_exact(8) {
+                    // SAFETY: the CPU has AVX2 and the chunk holds eight points.
+                    match unsafe { sampled8_avx2(map, &pin, &rig, chunk) } {
+                        Some(_) => vector_chunks += 1,
+                        None => fallback_chunks += 1,
+                    }
+                }
+            }
+        }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            assert!(
+                vector_chunks > 100 && fallback_chunks > 100,
+                "{vector_chunks} {fallback_chunks}"
+            );
         }
     }
 
