@@ -265,14 +265,14 @@ const AFTER_GAP_US: i64 = 100_000;
 /// (the global pass alone only accepts a pose it found itself).
 const GLOBAL_PASS_EVERY_US: i64 = 10_000;
 
-/// Whether a global pass is due at event time `t_us` while lost with a pose to track on: at most
-/// every [`GLOBAL_PASS_EVERY_US`], and only once the local steps since the last pass (started at
-/// `pass_us`, the first step after it at `after_us`) have had as much event time as that pass took.
-/// A pass costs tens of milliseconds (63 ms of CPU at 1280×720), far over `GLOBAL_PASS_EVERY_US`:
-/// without the second rule the solver ran nothing else, and a tracked pose lost while the object
-/// was hidden stood where it was as the object came back and moved off (occlusion-0.5s: one pass
-/// every 58 ms, no local step, never trusted again).
-fn global_pass_due(t_us: i64, pass_us: Option<i64>, after_us: Option<i64>) -> bool {
+/// Whether a kind of global pass is due at event time `t_us` while lost with a pose to track on:
+/// at most every [`GLOBAL_PASS_EVERY_US`], and only once the other steps since the last one
+/// (started at `pass_us`, the first step after it at `after_us`) have had `rest` times the event
+/// time it took. A full pass costs tens of milliseconds (63 ms of CPU at 1280×720), far over
+/// `GLOBAL_PASS_EVERY_US`: without this rule the solver ran nothing else, and a tracked pose lost
+/// while the object was hidden stood where it was as the object came back and moved off
+/// (occlusion-0.5s: one pass every 58 ms, no local step, never trusted again).
+fn global_pass_due(t_us: i64, pass_us: Option<i64>, after_us: Option<i64>, rest: i64) -> bool {
     let Some(pass_us) = pass_us else {
         return true;
     };
@@ -280,8 +280,13 @@ fn global_pass_due(t_us: i64, pass_us: Option<i64>, after_us: Option<i64>) -> bo
         return true; // the time line restarted
     }
     let took_us = after_us.map_or(0, |a| a - pass_us);
-    t_us - pass_us >= GLOBAL_PASS_EVERY_US && after_us.is_some_and(|a| t_us - a >= took_us)
+    t_us - pass_us >= GLOBAL_PASS_EVERY_US && after_us.is_some_and(|a| t_us - a >= rest * took_us)
 }
+
+/// The other steps get this many times the event time a full pass took (the near passes and the
+/// local steps between them share it), and as much as a near pass took.
+const FULL_PASS_REST: i64 = 2;
+const NEAR_PASS_REST: i64 = 1;
 
 /// The window (µs of event time) over which the model's blocks must have fired to count as active.
 const ACTIVE_WINDOW_US: i64 = 10_000;
@@ -884,8 +889,9 @@ pub struct Solver {
     last_global_us: Option<i64>,
     /// Event time (µs) of the first step after it (None until that step).
     after_global_us: Option<i64>,
-    /// Event time (µs) of the last pass that searched around the trusted and current poses.
+    /// Event time (µs) of the last near pass, and of the first step after it.
     last_near_us: Option<i64>,
+    after_near_us: Option<i64>,
     /// Event time (µs) of the first step after the last pass of any kind.
     after_pass_us: Option<i64>,
     /// The last pose trusted (the object was there when it was lost).
@@ -1043,6 +1049,7 @@ impl Solver {
             last_global_us: None,
             after_global_us: None,
             last_near_us: None,
+            after_near_us: None,
             after_pass_us: None,
             trusted_pose: None,
             pending: None,
@@ -1561,27 +1568,36 @@ impl Solver {
             self.after_pass_us
                 .is_some_and(|a| since(Some(a), GLOBAL_PASS_EVERY_US))
                 .then_some(Pass::Confirm)
-        } else if !tracking || global_pass_due(t_us, self.last_global_us, self.after_global_us) {
+        } else if !tracking
+            || global_pass_due(
+                t_us,
+                self.last_global_us,
+                self.after_global_us,
+                FULL_PASS_REST,
+            )
+        {
             Some(Pass::Full)
-        } else if self.had_pose && global_pass_due(t_us, self.last_near_us, self.after_pass_us) {
+        } else if self.had_pose
+            && global_pass_due(t_us, self.last_near_us, self.after_near_us, NEAR_PASS_REST)
+        {
             Some(Pass::Near)
         } else {
             None
         };
-        if pass == Some(Pass::Full) {
-            self.last_global_us = Some(t_us);
-            self.after_global_us = None;
-        } else {
-            self.after_global_us.get_or_insert(t_us);
-        }
-        if pass.is_some() {
-            self.after_pass_us = None;
-        } else {
-            self.after_pass_us.get_or_insert(t_us);
-        }
-        if matches!(pass, Some(Pass::Full | Pass::Near)) {
-            self.last_near_us = Some(t_us);
-        }
+        // When each kind of pass last ran, and the first step of any other kind after it.
+        let note = |ran: bool, at: &mut Option<i64>, after: &mut Option<i64>| {
+            if ran {
+                *at = Some(t_us);
+                *after = None;
+            } else {
+                after.get_or_insert(t_us);
+            }
+        };
+        let full = pass == Some(Pass::Full);
+        note(full, &mut self.last_global_us, &mut self.after_global_us);
+        let near = pass == Some(Pass::Near);
+        note(near, &mut self.last_near_us, &mut self.after_near_us);
+        note(pass.is_some(), &mut None, &mut self.after_pass_us);
         pass
     }
 
@@ -1978,6 +1994,7 @@ impl TrackerCore {
         s.last_global_us = None;
         s.after_global_us = None;
         s.last_near_us = None;
+        s.after_near_us = None;
         s.after_pass_us = None;
         s.publish();
     }
@@ -2966,17 +2983,24 @@ mod tests {
 
     #[test]
     fn a_global_pass_leaves_the_local_steps_as_much_time_as_it_took() {
-        assert!(global_pass_due(5_000, None, None));
-        // A pass at 0 that took 60 ms (the first step after it at 60 ms): the local steps run
-        // until 120 ms, however long ago the pass started.
-        assert!(!global_pass_due(60_000, Some(0), None));
-        assert!(!global_pass_due(119_000, Some(0), Some(60_000)));
-        assert!(global_pass_due(120_000, Some(0), Some(60_000)));
+        assert!(global_pass_due(5_000, None, None, 1));
+        // A pass at 0 that took 60 ms (the first step after it at 60 ms): the other steps run
+        // until 120 ms (180 ms with twice the rest), however long ago the pass started.
+        assert!(!global_pass_due(60_000, Some(0), None, 1));
+        assert!(!global_pass_due(119_000, Some(0), Some(60_000), 1));
+        assert!(global_pass_due(120_000, Some(0), Some(60_000), 1));
+        assert!(!global_pass_due(179_000, Some(0), Some(60_000), 2));
+        assert!(global_pass_due(180_000, Some(0), Some(60_000), 2));
         // A quick pass: at most every GLOBAL_PASS_EVERY_US.
-        assert!(!global_pass_due(9_000, Some(0), Some(1_000)));
-        assert!(global_pass_due(GLOBAL_PASS_EVERY_US, Some(0), Some(1_000)));
+        assert!(!global_pass_due(9_000, Some(0), Some(1_000), 1));
+        assert!(global_pass_due(
+            GLOBAL_PASS_EVERY_US,
+            Some(0),
+            Some(1_000),
+            1
+        ));
         // The time line restarted.
-        assert!(global_pass_due(1_000, Some(50_000), Some(60_000)));
+        assert!(global_pass_due(1_000, Some(50_000), Some(60_000), 1));
     }
 
     #[test]
