@@ -1367,9 +1367,11 @@ impl Solver {
         self.stamp((t_us, pushed_ns));
         self.last.confidence = 0.0;
         if !self.last.lost {
-            self.lost_by = LostBy::Dropout {
-                still: max_age_us(self.speed_px_s).is_none(),
-            };
+            let still = max_age_us(self.speed_px_s).is_none();
+            self.lost_by = LostBy::Dropout { still };
+            // A moving object is elsewhere once the events resume: with a bank it is searched
+            // for then, not trusted on the weaker local evidence (see `Solver::judge`).
+            self.searching |= !still && self.bank.is_some();
         }
         self.held_still = false;
         self.last.lost = true;
@@ -1425,7 +1427,16 @@ impl Solver {
                         && built
                         && !firing
                         && t_us.saturating_sub(resumed) >= ACTIVE_WINDOW_US;
-                    !(self.held_still || (active && confidence >= self.config.lost_below))
+                    // With a bank, a moving object is searched for after the dropout (see
+                    // `Solver::blind`), so the pose tracked on is held to `relock_above` like any
+                    // other: at `lost_below` it was trusted 20 mm / 24° off at 0.25–0.38 for up to
+                    // 104 ms (events-stop, EDFT, wip/relock8).
+                    let back = if !still && self.bank.is_some() {
+                        self.config.relock_above
+                    } else {
+                        self.config.lost_below
+                    };
+                    !(self.held_still || (active && confidence >= back))
                 }
             };
             return lost;
