@@ -1393,7 +1393,8 @@ impl Solver {
     /// A pose lost to a dropout is trusted again from `lost_below` once its blocks are visibly
     /// active again: blindness is no evidence against it, but the edges from before are. (Held to `relock_above`, a pose tracked
     /// on while the loop holds the camera still reads 0.25–0.38 as the object runs through the
-    /// image, and is never trusted again: benches/RESULTS.md, issue 12 "Round 6".) If the model was still
+    /// image, and is never trusted again: benches/RESULTS.md, issue 12 "Round 6"; with a template
+    /// bank a moving object is searched for instead and held to `relock_above`.) If the model was still
     /// when the events stopped and, over a whole activity window since they resumed, its blocks fire
     /// no more than their surroundings, nothing has moved there: the pose is trusted again and held
     /// (`held_still`) until its blocks are visibly active again. Its support cannot say so: the
