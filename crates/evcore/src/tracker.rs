@@ -116,7 +116,11 @@ impl Default for TrackerConfig {
             lost_below: LOST_BELOW,
             relock_above: RELOCK_ABOVE,
             lost_hold_us: 15_000,
-            search_fresh_us: 50_000,
+            // 10 ms, not 50: with the camera stopped, the sensor's noise refreshes most blocks
+            // within 50 ms and the front-end's old edges came back with them (occlusion-0.5s:
+            // chance 0.44–0.77 over the image, the true pose scoring 0.30–0.37 < 0.5; at 10 ms
+            // chance 0.31–0.33 and the truth 0.55–0.63).
+            search_fresh_us: 10_000,
             reacquire_above: 0.5,
             max_jump: 0.25,
             held_axes_o: Vec::new(),
@@ -262,6 +266,29 @@ const AFTER_GAP_US: i64 = 100_000;
 /// (the global pass alone only accepts a pose it found itself).
 const GLOBAL_PASS_EVERY_US: i64 = 10_000;
 
+/// Whether a kind of global pass is due at event time `t_us` while lost with a pose to track on:
+/// at most every [`GLOBAL_PASS_EVERY_US`], and only once the other steps since the last one
+/// (started at `pass_us`, the first step after it at `after_us`) have had `rest` times the event
+/// time it took. A full pass costs tens of milliseconds (63 ms of CPU at 1280×720), far over
+/// `GLOBAL_PASS_EVERY_US`: without this rule the solver ran nothing else, and a tracked pose lost
+/// while the object was hidden stood where it was as the object came back and moved off
+/// (occlusion-0.5s: one pass every 58 ms, no local step, never trusted again).
+fn global_pass_due(t_us: i64, pass_us: Option<i64>, after_us: Option<i64>, rest: i64) -> bool {
+    let Some(pass_us) = pass_us else {
+        return true;
+    };
+    if t_us < pass_us {
+        return true; // the time line restarted
+    }
+    let took_us = after_us.map_or(0, |a| a - pass_us);
+    t_us - pass_us >= GLOBAL_PASS_EVERY_US && after_us.is_some_and(|a| t_us - a >= rest * took_us)
+}
+
+/// The other steps get this many times the event time a full pass took (the near passes and the
+/// local steps between them share it), and as much as a near pass took.
+const FULL_PASS_REST: i64 = 2;
+const NEAR_PASS_REST: i64 = 1;
+
 /// The window (µs of event time) over which the model's blocks must have fired to count as active.
 const ACTIVE_WINDOW_US: i64 = 10_000;
 /// Every this many model points are sampled for the activity test.
@@ -292,8 +319,12 @@ const SWEEP_MAX_WIDTH: usize = 200;
 /// (see `Solver::refine`).
 const RESCORE_ABOVE: f32 = 0.25;
 
+/// Placements of the lost pose shifted across the image (see `TemplateBank::search_near`) refined
+/// per global pass.
+const NEAR_CANDIDATES: usize = 3;
+
 /// Global passes in a row that must find a candidate (the later ones refining it from where the
-/// earlier left it) before it is trusted.
+/// local steps took it since) before it is trusted.
 const CONFIRM_PASSES: u32 = 2;
 
 /// Whether two candidates of successive global passes are the same hypothesis: within 2 cm and 5°
@@ -857,12 +888,22 @@ pub struct Solver {
     had_pose: bool,
     /// Event time (µs) of the last global pass.
     last_global_us: Option<i64>,
+    /// Event time (µs) of the first step after it (None until that step).
+    after_global_us: Option<i64>,
+    /// Event time (µs) of the last near pass, and of the first step after it.
+    last_near_us: Option<i64>,
+    after_near_us: Option<i64>,
+    /// Event time (µs) of the first step after the last pass of any kind.
+    after_pass_us: Option<i64>,
+    /// The last pose trusted (the object was there when it was lost).
+    trusted_pose: Option<Pose>,
     /// The sweep's field when the coarsest level is wider than `SWEEP_MAX_WIDTH` (one level,
     /// OR-pooled from the coarsest; built lazily).
     sweep_field: Option<DistanceField>,
-    /// A global-search candidate that passed `reacquire_above` once, waiting for the next pass to
-    /// find it again (refined from where it was) before it is trusted: (pose, view, passes).
-    pending: Option<(Pose, Option<usize>, u32)>,
+    /// Passes in a row that found the current pose, a global-search candidate that passed
+    /// `reacquire_above` and was taken as the pose to track on while still lost: the next pass
+    /// only has to find it again where the local steps took it before it is trusted.
+    pending: Option<u32>,
     /// The batches this update took in, claimed at its start.
     claim: Claim,
     /// Scratch for [`Solver::activity_at`]: projected model points, and which cells of the
@@ -904,6 +945,18 @@ enum LostBy {
     /// Only the events stopped (see [`Solver::blind`]); `still`: the model was still in the image
     /// when they did.
     Dropout { still: bool },
+}
+
+/// What a global pass searches while lost (see [`Solver::pass_due`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Pass {
+    /// The whole bank over the whole image (tens of milliseconds), and what `Near` searches.
+    Full,
+    /// The image around the last trusted pose and the current one (`TemplateBank::search_near`;
+    /// a few thousand chamfer placements and a few LM refinements): run between full passes.
+    Near,
+    /// The current pose, a candidate being tracked, and its look-alikes: whether it is found again.
+    Confirm,
 }
 
 /// A candidate of a global search (diagnostics and the acceptance test).
@@ -995,6 +1048,11 @@ impl Solver {
             evidence: Evidence::default(),
             had_pose: true,
             last_global_us: None,
+            after_global_us: None,
+            last_near_us: None,
+            after_near_us: None,
+            after_pass_us: None,
+            trusted_pose: None,
             pending: None,
             sweep_field: None,
             claim: Claim::default(),
@@ -1060,6 +1118,7 @@ impl Solver {
         self.held_still = false;
         self.active_at = None;
         self.pending = None;
+        self.trusted_pose = None;
         self.motion.reset();
         self.schedule.restart();
         self.publish();
@@ -1085,20 +1144,18 @@ impl Solver {
         }
         if self.searching {
             if let Some(bank) = self.bank.clone() {
-                // Without a pose ever trusted there is nothing to track locally.
-                let due = self
-                    .last_global_us
-                    .is_none_or(|t| t_us - t >= GLOBAL_PASS_EVERY_US || t_us < t);
-                if !self.had_pose && self.last_global_us == Some(t_us) {
+                // Without a pose ever trusted or a candidate to confirm there is nothing to
+                // track locally.
+                let tracking = self.had_pose || self.pending.is_some();
+                if !tracking && self.last_global_us == Some(t_us) {
                     // No event since the last pass: the same search would find the same, and a
                     // candidate is only confirmed by a pass over newer events.
                     self.last.seq += 1;
                     self.publish();
                     return self.last;
                 }
-                if due || !self.had_pose {
-                    self.last_global_us = Some(t_us);
-                    return self.reacquire(&bank);
+                if let Some(pass) = self.pass_due(t_us, tracking) {
+                    return self.reacquire(&bank, pass);
                 }
             }
         }
@@ -1149,10 +1206,13 @@ impl Solver {
         // while the object comes back elsewhere (occlusion-0.5s: the pose stayed on them, 20 → 55
         // mm off, confidence 0.3 → 0.05, never trusted again): the field is built only from
         // pixels whose block fired since the events resumed, or within the activity window
-        // (since the silence began, the background has fired in most blocks).
+        // (since the silence began, the background has fired in most blocks). So too while a
+        // global-search candidate is tracked: it was found on such a field, and the front-end
+        // may hold what drowned the object (pure-noise: chance 0.56 around the candidate, its
+        // confidence 0.02, and LM never pulled it the 22 mm the object moved during the pass).
         let fresh_since = if (0..AFTER_GAP_US).contains(&t_us.saturating_sub(resumed)) {
             Some(resumed)
-        } else if self.last.lost && self.lost_by == LostBy::Silence {
+        } else if self.last.lost && (self.lost_by == LostBy::Silence || self.pending.is_some()) {
             Some(t_us - ACTIVE_WINDOW_US)
         } else {
             None
@@ -1246,6 +1306,8 @@ impl Solver {
         }
         if !lost {
             self.searching = false;
+            self.pending = None;
+            self.trusted_pose = Some(accepted);
             self.follow_view(&accepted);
         }
         self.last = Estimate {
@@ -1306,9 +1368,11 @@ impl Solver {
         self.stamp((t_us, pushed_ns));
         self.last.confidence = 0.0;
         if !self.last.lost {
-            self.lost_by = LostBy::Dropout {
-                still: max_age_us(self.speed_px_s).is_none(),
-            };
+            let still = max_age_us(self.speed_px_s).is_none();
+            self.lost_by = LostBy::Dropout { still };
+            // A moving object is elsewhere once the events resume: with a bank it is searched
+            // for then, not trusted on the weaker local evidence (see `Solver::judge`).
+            self.searching |= !still && self.bank.is_some();
         }
         self.held_still = false;
         self.last.lost = true;
@@ -1330,7 +1394,8 @@ impl Solver {
     /// A pose lost to a dropout is trusted again from `lost_below` once its blocks are visibly
     /// active again: blindness is no evidence against it, but the edges from before are. (Held to `relock_above`, a pose tracked
     /// on while the loop holds the camera still reads 0.25–0.38 as the object runs through the
-    /// image, and is never trusted again: benches/RESULTS.md, issue 12 "Round 6".) If the model was still
+    /// image, and is never trusted again: benches/RESULTS.md, issue 12 "Round 6"; with a template
+    /// bank a moving object is searched for instead and held to `relock_above`.) If the model was still
     /// when the events stopped and, over a whole activity window since they resumed, its blocks fire
     /// no more than their surroundings, nothing has moved there: the pose is trusted again and held
     /// (`held_still`) until its blocks are visibly active again. Its support cannot say so: the
@@ -1345,6 +1410,11 @@ impl Solver {
         .excess();
         let firing = built && excess >= QUIET;
         if self.last.lost {
+            if self.pending.is_some() {
+                // A global-search candidate being tracked is trusted by the pass that confirms
+                // it, on its stricter score, never by its local confidence alone.
+                return true;
+            }
             // Back from silence or a dropout only when visibly active again: the front-end's old
             // edges would otherwise be trusted (a sampled share of a few hundred blocks at the
             // background's rate passes `QUIET` now and then by chance: occlusion-0.5s, 270 ms
@@ -1359,7 +1429,16 @@ impl Solver {
                         && built
                         && !firing
                         && t_us.saturating_sub(resumed) >= ACTIVE_WINDOW_US;
-                    !(self.held_still || (active && confidence >= self.config.lost_below))
+                    // With a bank, a moving object is searched for after the dropout (see
+                    // `Solver::blind`), so the pose tracked on is held to `relock_above` like any
+                    // other: at `lost_below` it was trusted 20 mm / 24° off at 0.25–0.38 for up to
+                    // 104 ms (events-stop, EDFT, wip/relock8).
+                    let back = if !still && self.bank.is_some() {
+                        self.config.relock_above
+                    } else {
+                        self.config.lost_below
+                    };
+                    !(self.held_still || (active && confidence >= back))
                 }
             };
             return lost;
@@ -1491,14 +1570,59 @@ impl Solver {
         evidence(self.field.level(0), &pin, &rig, points, &query)
     }
 
+    /// Which global pass, if any, is due at event time `t_us` while searching (`tracking`: there
+    /// is a pose to track on locally between passes); notes its time.
+    fn pass_due(&mut self, t_us: i64, tracking: bool) -> Option<Pass> {
+        let since = |t: Option<i64>, every: i64| t.is_none_or(|t| t_us - t >= every || t_us < t);
+        let pass = if self.pending.is_some() {
+            // Confirming a candidate costs a few LM refinements, not a sweep: it is due once the
+            // local steps have tracked it for `GLOBAL_PASS_EVERY_US` (the object moved on while
+            // the pass that found it ran: 18–24 mm in its 80 ms, occlusion-0.5s).
+            self.after_pass_us
+                .is_some_and(|a| since(Some(a), GLOBAL_PASS_EVERY_US))
+                .then_some(Pass::Confirm)
+        } else if !tracking
+            || global_pass_due(
+                t_us,
+                self.last_global_us,
+                self.after_global_us,
+                FULL_PASS_REST,
+            )
+        {
+            Some(Pass::Full)
+        } else if self.had_pose
+            && global_pass_due(t_us, self.last_near_us, self.after_near_us, NEAR_PASS_REST)
+        {
+            Some(Pass::Near)
+        } else {
+            None
+        };
+        // When each kind of pass last ran, and the first step of any other kind after it.
+        let note = |ran: bool, at: &mut Option<i64>, after: &mut Option<i64>| {
+            if ran {
+                *at = Some(t_us);
+                *after = None;
+            } else {
+                after.get_or_insert(t_us);
+            }
+        };
+        let full = pass == Some(Pass::Full);
+        note(full, &mut self.last_global_us, &mut self.after_global_us);
+        let near = pass == Some(Pass::Near);
+        note(near, &mut self.last_near_us, &mut self.after_near_us);
+        note(pass.is_some(), &mut None, &mut self.after_pass_us);
+        pass
+    }
+
     /// Build a field over the whole image from the pixels that fired within `search_fresh_us` of
-    /// `t_us`, sweep `bank` over it and refine its best candidates, the current pose and `extra`
-    /// by LM; every refined candidate with its evidence (None: the field could not be built).
+    /// `t_us` and refine by LM, on it, the current pose, `extra` and what `pass` searches; every
+    /// refined candidate with its evidence (None: the field could not be built).
     fn global_candidates(
         &mut self,
         bank: &TemplateBank,
         t_us: i64,
         extra: &[(Pose, Option<usize>)],
+        pass: Pass,
     ) -> Option<Vec<Candidate>> {
         let full = Roi::full(self.rect.width, self.rect.height);
         let levels = self.config.field.levels;
@@ -1509,20 +1633,42 @@ impl Solver {
         self.recency
             .keep_fresh(&mut self.mask, full, t_us - self.config.search_fresh_us);
         self.field.build(&self.mask, full, levels).ok()?;
+        let mut seeds: Vec<(Pose, Option<usize>, f32)> = vec![(self.last.pose, None, f32::NAN)];
         let coarsest = levels - 1;
-        let found = match self.sweep_level(coarsest) {
-            Some(level) => {
-                let pin = Pinhole::at_level(&self.rect, level);
-                let field = self.sweep_field.as_ref()?;
-                bank.search(field.level(0), &pin)
+        if pass != Pass::Confirm {
+            let (level, pin) = match self.sweep_level(coarsest) {
+                Some(level) => (
+                    self.sweep_field.as_ref()?.level(0),
+                    Pinhole::at_level(&self.rect, level),
+                ),
+                None => (self.field.level(coarsest), self.pins[coarsest as usize]),
+            };
+            if pass == Pass::Full {
+                seeds.extend(
+                    bank.search(level, &pin)
+                        .into_iter()
+                        .map(|(pose, view, cost)| (pose, Some(view), cost)),
+                );
             }
-            None => bank.search(self.field.level(coarsest), &self.pins[coarsest as usize]),
-        };
-        let mut seeds: Vec<(Pose, Option<usize>, f32)> = found
-            .into_iter()
-            .map(|(pose, view, cost)| (pose, Some(view), cost))
-            .collect();
-        seeds.push((self.last.pose, None, f32::NAN));
+            // Around where the object was last trusted (the camera stopped there) and where
+            // the local steps took the pose since (a tracked pose drifts while the object is
+            // hidden or drowned in noise: pure-noise, 35 mm / 30° at its end).
+            let mut anchors = vec![self.last.pose];
+            if let Some(p) = self
+                .trusted_pose
+                .filter(|p| !same_place(p, &self.last.pose))
+            {
+                anchors.push(p);
+            }
+            for anchor in anchors.into_iter().filter(|_| self.had_pose) {
+                let view = bank.nearest_view(&anchor).0;
+                seeds.extend(
+                    bank.search_near(level, &pin, &anchor, view, NEAR_CANDIDATES)
+                        .into_iter()
+                        .map(|(pose, cost)| (pose, Some(view), cost)),
+                );
+            }
+        }
         for &(p, v) in extra {
             let v = v.unwrap_or_else(|| bank.nearest_view(&p).0);
             let c = bank.chamfer_at(
@@ -1630,14 +1776,13 @@ impl Solver {
     /// One global search over the whole image (see [`crate::templates`]): the bank's best
     /// candidates and the current pose are refined by LM on a full-image field, and the most
     /// confident is taken if it passes `reacquire_above`; otherwise the tracker stays lost.
-    fn reacquire(&mut self, bank: &TemplateBank) -> Estimate {
+    fn reacquire(&mut self, bank: &TemplateBank, pass: Pass) -> Estimate {
         let started = Instant::now();
         let (t_us, pushed_ns) = self.newest();
         let n_events = self.out.ingested.load(Ordering::Relaxed);
         let pending = self.pending.take();
-        let extra: Vec<(Pose, Option<usize>)> = pending.iter().map(|p| (p.0, p.1)).collect();
         let mut scored: Vec<(f32, Pose, Option<usize>)> = self
-            .global_candidates(bank, t_us, &extra)
+            .global_candidates(bank, t_us, &[], pass)
             .unwrap_or_default()
             .into_iter()
             .map(|c| (acquisition_score(&c.evidence), c.pose, c.view))
@@ -1687,29 +1832,32 @@ impl Solver {
         self.last.confidence = best.map_or(0.0, |b| b.0);
         self.last.lost = true;
         if let Some((c, pose, view)) = best.filter(|b| b.0 >= self.config.reacquire_above) {
-            // Trusted only once a second pass finds it again where the first left it (tracked by
-            // LM from there on the new events): a fit that one pass's events happen to allow, on
-            // noise or on part of the edges, rarely survives the next.
+            // Trusted only once a later pass finds it again where the local steps took it on the
+            // new events: a fit that one pass's events happen to allow, on noise or on part of the
+            // edges, rarely survives the next. Until then it is tracked, still lost: the object
+            // moves on between passes (occlusion-0.5s: 45 mm in the 150 ms to the next full pass,
+            // and a candidate refined from where the first pass left it was never found again).
             let passes = match pending {
-                Some((p, _, n)) if same_place(&p, &pose) => n + 1,
+                Some(n) if same_place(&self.last.pose, &pose) => n + 1,
                 _ => 1,
             };
+            if let Some(v) = view {
+                self.use_view(bank, v);
+            }
+            self.last.pose = pose;
+            self.motion.reset();
+            self.schedule.restart();
             if passes >= CONFIRM_PASSES {
-                if let Some(v) = view {
-                    self.use_view(bank, v);
-                }
-                self.last.pose = pose;
+                self.had_pose = true;
+                self.trusted_pose = Some(pose);
                 self.last.confidence = c;
                 self.last.lost = false;
                 self.last.visible_fraction = 1.0;
                 self.searching = false;
-                self.had_pose = true;
                 self.lost_by = LostBy::Evidence;
                 self.held_still = false;
-                self.motion.reset();
-                self.schedule.restart();
             } else {
-                self.pending = Some((pose, view, passes));
+                self.pending = Some(passes);
             }
         }
         self.publish();
@@ -1837,7 +1985,8 @@ impl TrackerCore {
         };
         let t_us = s.newest().0;
         let extra: Vec<_> = extra.iter().map(|&p| (p, None)).collect();
-        s.global_candidates(&bank, t_us, &extra).unwrap_or_default()
+        s.global_candidates(&bank, t_us, &extra, Pass::Full)
+            .unwrap_or_default()
     }
 
     /// The template bank's model centre (object frame), if there is a bank.
@@ -1853,8 +2002,13 @@ impl TrackerCore {
         s.last.confidence = 0.0;
         s.searching = true;
         s.had_pose = false;
+        s.trusted_pose = None;
         s.pending = None;
         s.last_global_us = None;
+        s.after_global_us = None;
+        s.last_near_us = None;
+        s.after_near_us = None;
+        s.after_pass_us = None;
         s.publish();
     }
 
@@ -2838,6 +2992,28 @@ mod tests {
             .expect("a normal start works");
         assert!(tr.is_running());
         tr.stop();
+    }
+
+    #[test]
+    fn a_global_pass_leaves_the_local_steps_as_much_time_as_it_took() {
+        assert!(global_pass_due(5_000, None, None, 1));
+        // A pass at 0 that took 60 ms (the first step after it at 60 ms): the other steps run
+        // until 120 ms (180 ms with twice the rest), however long ago the pass started.
+        assert!(!global_pass_due(60_000, Some(0), None, 1));
+        assert!(!global_pass_due(119_000, Some(0), Some(60_000), 1));
+        assert!(global_pass_due(120_000, Some(0), Some(60_000), 1));
+        assert!(!global_pass_due(179_000, Some(0), Some(60_000), 2));
+        assert!(global_pass_due(180_000, Some(0), Some(60_000), 2));
+        // A quick pass: at most every GLOBAL_PASS_EVERY_US.
+        assert!(!global_pass_due(9_000, Some(0), Some(1_000), 1));
+        assert!(global_pass_due(
+            GLOBAL_PASS_EVERY_US,
+            Some(0),
+            Some(1_000),
+            1
+        ));
+        // The time line restarted.
+        assert!(global_pass_due(1_000, Some(50_000), Some(60_000), 1));
     }
 
     #[test]
