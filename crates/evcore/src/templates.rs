@@ -524,32 +524,17 @@ mod tests {
     #[test]
     fn the_global_search_finds_a_cube_anywhere_in_the_image() {
         let cam = Camera::imx636().rectified();
-        let mesh = test_cube(0.15, Shading::Constant(0.8));
+        let (mesh, bank) = cube_bank(&cam);
         let dense = PointSetParams {
             max_points: 4000,
             ..PointSetParams::default()
         };
-        let bank = TemplateBank::render(
-            &mesh,
-            &cam,
-            BankParams::default(),
-            &PointSetParams::default(),
-        )
-        .unwrap();
         assert!(bank.views.len() > 150, "{} views", bank.views.len());
         let r = UnitQuaternion::from_scaled_axis(Vector3::new(0.5, -0.7, 0.3));
         let truth = Pose::from_parts(Translation3::new(-0.15, 0.08, 0.8), r);
-        let edge = extract_point_set(&mesh, &cam, &truth, &dense).unwrap();
+        let field = edge_field(&mesh, &cam, &truth, &dense);
         let full = Roi::full(cam.width, cam.height);
-        let mut mask = vec![0u8; full.area()];
-        let rig = Rigid32::from_pose(&truth);
         let pin = Pinhole::at_level(&cam, 0);
-        for &x in &edge.points_o {
-            let (u, v) = pin.project(rig.apply(x)).unwrap();
-            mask[v.round() as usize * cam.width as usize + u.round() as usize] = 1;
-        }
-        let mut field = DistanceField::new(FieldParams::default()).unwrap();
-        field.build(&mask, full, 3).unwrap();
         let found = bank.search(field.level(2), &Pinhole::at_level(&cam, 2));
         // The tracker refines each candidate and keeps the most confident; the confidence alone
         // must already point at the right one.
@@ -604,26 +589,10 @@ mod tests {
     #[test]
     fn the_search_near_a_lost_pose_puts_it_back_on_the_object() {
         let cam = Camera::imx636().rectified();
-        let mesh = test_cube(0.15, Shading::Constant(0.8));
-        let bank = TemplateBank::render(
-            &mesh,
-            &cam,
-            BankParams::default(),
-            &PointSetParams::default(),
-        )
-        .unwrap();
+        let (mesh, bank) = cube_bank(&cam);
         let r = UnitQuaternion::from_scaled_axis(Vector3::new(0.5, -0.7, 0.3));
         let truth = Pose::from_parts(Translation3::new(-0.05, 0.03, 0.8), r);
-        let edge = extract_point_set(&mesh, &cam, &truth, &PointSetParams::default()).unwrap();
-        let full = Roi::full(cam.width, cam.height);
-        let mut mask = vec![0u8; full.area()];
-        let (rig, pin) = (Rigid32::from_pose(&truth), Pinhole::at_level(&cam, 0));
-        for &x in &edge.points_o {
-            let (u, v) = pin.project(rig.apply(x)).unwrap();
-            mask[v.round() as usize * cam.width as usize + u.round() as usize] = 1;
-        }
-        let mut field = DistanceField::new(FieldParams::default()).unwrap();
-        field.build(&mask, full, 3).unwrap();
+        let field = edge_field(&mesh, &cam, &truth, &PointSetParams::default());
         // Lost 60 mm to the side and 40 mm up (within two of the cube's image radii at 0.8 m).
         let lost = Pose::from_parts(Translation3::new(0.01, -0.01, 0.8), r);
         let view = bank.nearest_view(&truth).0;
@@ -637,7 +606,8 @@ mod tests {
         );
     }
 
-    fn searching_cube(cam: &Camera) -> (Mesh, TrackerCore) {
+    /// A 15 cm grey cube and its template bank (default spacing and depths).
+    fn cube_bank(cam: &Camera) -> (Mesh, TemplateBank) {
         let mesh = test_cube(0.15, Shading::Constant(0.8));
         let bank = TemplateBank::render(
             &mesh,
@@ -646,6 +616,31 @@ mod tests {
             &PointSetParams::default(),
         )
         .unwrap();
+        (mesh, bank)
+    }
+
+    /// A three-level field over the whole image of `mesh`'s edge points at `pose`, each one pixel.
+    fn edge_field(
+        mesh: &Mesh,
+        cam: &Camera,
+        pose: &Pose,
+        params: &PointSetParams,
+    ) -> DistanceField {
+        let edge = extract_point_set(mesh, cam, pose, params).unwrap();
+        let full = Roi::full(cam.width, cam.height);
+        let mut mask = vec![0u8; full.area()];
+        let (rig, pin) = (Rigid32::from_pose(pose), Pinhole::at_level(cam, 0));
+        for &x in &edge.points_o {
+            let (u, v) = pin.project(rig.apply(x)).unwrap();
+            mask[v.round() as usize * cam.width as usize + u.round() as usize] = 1;
+        }
+        let mut field = DistanceField::new(FieldParams::default()).unwrap();
+        field.build(&mask, full, 3).unwrap();
+        field
+    }
+
+    fn searching_cube(cam: &Camera) -> (Mesh, TrackerCore) {
+        let (mesh, bank) = cube_bank(cam);
         let core = TrackerCore::searching(cam, bank, TrackerConfig::default()).unwrap();
         (mesh, core)
     }
