@@ -284,6 +284,31 @@ fn global_pass_due(t_us: i64, pass_us: Option<i64>, after_us: Option<i64>, rest:
     t_us - pass_us >= GLOBAL_PASS_EVERY_US && after_us.is_some_and(|a| t_us - a >= rest * took_us)
 }
 
+/// When a kind of global pass last ran and when the first step of any other kind after it did
+/// (event times, µs; None: not yet).
+#[derive(Debug, Clone, Copy, Default)]
+struct PassClock {
+    ran_us: Option<i64>,
+    after_us: Option<i64>,
+}
+
+impl PassClock {
+    /// See [`global_pass_due`].
+    fn due(&self, t_us: i64, rest: i64) -> bool {
+        global_pass_due(t_us, self.ran_us, self.after_us, rest)
+    }
+
+    /// A step at `t_us`: this kind of pass (`ran`) or any other.
+    fn note(&mut self, ran: bool, t_us: i64) {
+        if ran {
+            self.ran_us = Some(t_us);
+            self.after_us = None;
+        } else {
+            self.after_us.get_or_insert(t_us);
+        }
+    }
+}
+
 /// The other steps get this many times the event time a full pass took (the near passes and the
 /// local steps between them share it), and as much as a near pass took.
 const FULL_PASS_REST: i64 = 2;
@@ -886,15 +911,10 @@ pub struct Solver {
     /// A pose was given or trusted once: while lost, local steps track on from it between the
     /// global passes.
     had_pose: bool,
-    /// Event time (µs) of the last global pass.
-    last_global_us: Option<i64>,
-    /// Event time (µs) of the first step after it (None until that step).
-    after_global_us: Option<i64>,
-    /// Event time (µs) of the last near pass, and of the first step after it.
-    last_near_us: Option<i64>,
-    after_near_us: Option<i64>,
-    /// Event time (µs) of the first step after the last pass of any kind.
-    after_pass_us: Option<i64>,
+    /// When the last full global pass, near pass and pass of any kind ran (see [`Pass`]).
+    full_pass: PassClock,
+    near_pass: PassClock,
+    any_pass: PassClock,
     /// The last pose trusted (the object was there when it was lost).
     trusted_pose: Option<Pose>,
     /// The sweep's field when the coarsest level is wider than `SWEEP_MAX_WIDTH` (one level,
@@ -1047,11 +1067,9 @@ impl Solver {
             points_dir_o: None,
             evidence: Evidence::default(),
             had_pose: true,
-            last_global_us: None,
-            after_global_us: None,
-            last_near_us: None,
-            after_near_us: None,
-            after_pass_us: None,
+            full_pass: PassClock::default(),
+            near_pass: PassClock::default(),
+            any_pass: PassClock::default(),
             trusted_pose: None,
             pending: None,
             sweep_field: None,
@@ -1147,7 +1165,7 @@ impl Solver {
                 // Without a pose ever trusted or a candidate to confirm there is nothing to
                 // track locally.
                 let tracking = self.had_pose || self.pending.is_some();
-                if !tracking && self.last_global_us == Some(t_us) {
+                if !tracking && self.full_pass.ran_us == Some(t_us) {
                     // No event since the last pass: the same search would find the same, and a
                     // candidate is only confirmed by a pass over newer events.
                     self.last.seq += 1;
@@ -1573,44 +1591,24 @@ impl Solver {
     /// Which global pass, if any, is due at event time `t_us` while searching (`tracking`: there
     /// is a pose to track on locally between passes); notes its time.
     fn pass_due(&mut self, t_us: i64, tracking: bool) -> Option<Pass> {
-        let since = |t: Option<i64>, every: i64| t.is_none_or(|t| t_us - t >= every || t_us < t);
         let pass = if self.pending.is_some() {
             // Confirming a candidate costs a few LM refinements, not a sweep: it is due once the
             // local steps have tracked it for `GLOBAL_PASS_EVERY_US` (the object moved on while
             // the pass that found it ran: 18–24 mm in its 80 ms, occlusion-0.5s).
-            self.after_pass_us
-                .is_some_and(|a| since(Some(a), GLOBAL_PASS_EVERY_US))
+            self.any_pass
+                .after_us
+                .is_some_and(|a| t_us - a >= GLOBAL_PASS_EVERY_US || t_us < a)
                 .then_some(Pass::Confirm)
-        } else if !tracking
-            || global_pass_due(
-                t_us,
-                self.last_global_us,
-                self.after_global_us,
-                FULL_PASS_REST,
-            )
-        {
+        } else if !tracking || self.full_pass.due(t_us, FULL_PASS_REST) {
             Some(Pass::Full)
-        } else if self.had_pose
-            && global_pass_due(t_us, self.last_near_us, self.after_near_us, NEAR_PASS_REST)
-        {
+        } else if self.had_pose && self.near_pass.due(t_us, NEAR_PASS_REST) {
             Some(Pass::Near)
         } else {
             None
         };
-        // When each kind of pass last ran, and the first step of any other kind after it.
-        let note = |ran: bool, at: &mut Option<i64>, after: &mut Option<i64>| {
-            if ran {
-                *at = Some(t_us);
-                *after = None;
-            } else {
-                after.get_or_insert(t_us);
-            }
-        };
-        let full = pass == Some(Pass::Full);
-        note(full, &mut self.last_global_us, &mut self.after_global_us);
-        let near = pass == Some(Pass::Near);
-        note(near, &mut self.last_near_us, &mut self.after_near_us);
-        note(pass.is_some(), &mut None, &mut self.after_pass_us);
+        self.full_pass.note(pass == Some(Pass::Full), t_us);
+        self.near_pass.note(pass == Some(Pass::Near), t_us);
+        self.any_pass.note(pass.is_some(), t_us);
         pass
     }
 
@@ -1653,14 +1651,15 @@ impl Solver {
             // Around where the object was last trusted (the camera stopped there) and where
             // the local steps took the pose since (a tracked pose drifts while the object is
             // hidden or drowned in noise: pure-noise, 35 mm / 30° at its end).
-            let mut anchors = vec![self.last.pose];
-            if let Some(p) = self
-                .trusted_pose
-                .filter(|p| !same_place(p, &self.last.pose))
-            {
-                anchors.push(p);
+            let mut anchors = Vec::new();
+            if self.had_pose {
+                anchors.push(self.last.pose);
+                anchors.extend(
+                    self.trusted_pose
+                        .filter(|p| !same_place(p, &self.last.pose)),
+                );
             }
-            for anchor in anchors.into_iter().filter(|_| self.had_pose) {
+            for anchor in anchors {
                 let view = bank.nearest_view(&anchor).0;
                 seeds.extend(
                     bank.search_near(level, &pin, &anchor, view, NEAR_CANDIDATES)
@@ -2004,11 +2003,9 @@ impl TrackerCore {
         s.had_pose = false;
         s.trusted_pose = None;
         s.pending = None;
-        s.last_global_us = None;
-        s.after_global_us = None;
-        s.last_near_us = None;
-        s.after_near_us = None;
-        s.after_pass_us = None;
+        s.full_pass = PassClock::default();
+        s.near_pass = PassClock::default();
+        s.any_pass = PassClock::default();
         s.publish();
     }
 
