@@ -61,6 +61,24 @@ pub trait CostMap {
     ) -> Option<[std::arch::x86_64::__m256; 3]> {
         None
     }
+    /// The search stars of eight points (lanes of `u`, `v`; their offsets `du[k]`, `dv[k]`), for
+    /// callers compiled for AVX2: candidate i's eight values in vector i, each the value
+    /// [`Self::add_star`] would add for that point and candidate. None (the default, and whenever
+    /// a map has no vector path for these stars) sends the caller to the stars one by one.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn stars8_avx2(
+        &self,
+        _u: std::arch::x86_64::__m256,
+        _v: std::arch::x86_64::__m256,
+        _du: &[std::arch::x86_64::__m256; 6],
+        _dv: &[std::arch::x86_64::__m256; 6],
+    ) -> Option<[std::arch::x86_64::__m256; 13]> {
+        None
+    }
 }
 
 /// Points closer to the camera plane than this are treated as unprojectable (metres).
@@ -156,6 +174,103 @@ pub fn image_jacobian(pin: &Pinhole, p: [f32; 3], pivot: [f32; 3]) -> [[f32; 6];
             q[1] * a[2] - q[2] * a[1],
             q[2] * a[0] - q[0] * a[2],
             q[0] * a[1] - q[1] * a[0],
+        ]
+    };
+    [row(au), row(av)]
+}
+
+/// Eight points warped by `rig` and projected, lane by lane the same operations in the same
+/// order as [`Rigid32::apply`] and [`Pinhole::project`] (so the same bits): the camera-frame
+/// coordinates and (u, v). None when a point lies in front of the minimum depth, which `project`
+/// refuses.
+///
+/// # Safety
+/// The CPU must have AVX2, and `chunk` must hold eight points.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) unsafe fn warp_project8_avx2(
+    pin: &Pinhole,
+    rig: &Rigid32,
+    chunk: &[[f32; 3]],
+) -> Option<Projected8> {
+    use std::arch::x86_64::*;
+    debug_assert_eq!(chunk.len(), 8);
+    let base = chunk.as_ptr().cast::<f32>();
+    let lanes = _mm256_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21);
+    // SAFETY: the gathers read coordinate c of the eight points, within `chunk`.
+    let coord = |c: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(c), lanes) };
+    let (x, y, z) = (coord(0), coord(1), coord(2));
+    let s = _mm256_set1_ps;
+    // r[3i]·x + r[3i+1]·y + r[3i+2]·z + t[i], added left to right as in `Rigid32::apply`.
+    let row = |i: usize| {
+        let r = &rig.r[3 * i..3 * i + 3];
+        let xy = _mm256_add_ps(_mm256_mul_ps(s(r[0]), x), _mm256_mul_ps(s(r[1]), y));
+        _mm256_add_ps(_mm256_add_ps(xy, _mm256_mul_ps(s(r[2]), z)), s(rig.t[i]))
+    };
+    let p = [row(0), row(1), row(2)];
+    // `Pinhole::project` refuses a depth below the minimum (and takes NaN, which a map refuses).
+    if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(p[2], s(MIN_DEPTH_M))) != 0 {
+        return None;
+    }
+    let iz = _mm256_div_ps(s(1.0), p[2]);
+    let u = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(s(pin.fx), p[0]), iz), s(pin.cx));
+    let v = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(s(pin.fy), p[1]), iz), s(pin.cy));
+    Some(Projected8 { p, u, v })
+}
+
+/// What [`warp_project8_avx2`] gives for eight points: camera-frame coordinates (metres) and image
+/// positions (level pixels), one lane per point.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub(crate) struct Projected8 {
+    pub p: [std::arch::x86_64::__m256; 3],
+    pub u: std::arch::x86_64::__m256,
+    pub v: std::arch::x86_64::__m256,
+}
+
+/// [`image_jacobian`] of eight camera-frame points (lanes of `p`), the same operations in the same
+/// order per lane (the zero entries of ∂u/∂P included, since 0·q is not always +0), so the same
+/// bits.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) unsafe fn image_jacobian8_avx2(
+    pin: &Pinhole,
+    p: &[std::arch::x86_64::__m256; 3],
+    pivot: [f32; 3],
+) -> [[std::arch::x86_64::__m256; 6]; 2] {
+    use std::arch::x86_64::*;
+    let s = _mm256_set1_ps;
+    let (mul, sub) = (_mm256_mul_ps, _mm256_sub_ps);
+    let iz = _mm256_div_ps(s(1.0), p[2]);
+    let zero = _mm256_setzero_ps();
+    let au = [
+        mul(s(pin.fx), iz),
+        zero,
+        mul(mul(mul(s(-pin.fx), p[0]), iz), iz),
+    ];
+    let av = [
+        zero,
+        mul(s(pin.fy), iz),
+        mul(mul(mul(s(-pin.fy), p[1]), iz), iz),
+    ];
+    let q = [
+        sub(p[0], s(pivot[0])),
+        sub(p[1], s(pivot[1])),
+        sub(p[2], s(pivot[2])),
+    ];
+    let row = |a: [__m256; 3]| {
+        [
+            a[0],
+            a[1],
+            a[2],
+            sub(mul(q[1], a[2]), mul(q[2], a[1])),
+            sub(mul(q[2], a[0]), mul(q[0], a[2])),
+            sub(mul(q[0], a[1]), mul(q[1], a[0])),
         ]
     };
     [row(au), row(av)]
@@ -345,6 +460,18 @@ impl CostMap for crate::field::FieldLevel {
     ) -> Option<[std::arch::x86_64::__m256; 3]> {
         // SAFETY: the caller guarantees AVX2.
         unsafe { crate::field::FieldLevel::sample_slope8_avx2(self, u, v) }
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn stars8_avx2(
+        &self,
+        u: std::arch::x86_64::__m256,
+        v: std::arch::x86_64::__m256,
+        du: &[std::arch::x86_64::__m256; 6],
+        dv: &[std::arch::x86_64::__m256; 6],
+    ) -> Option<[std::arch::x86_64::__m256; 13]> {
+        // SAFETY: the caller guarantees AVX2.
+        unsafe { super::star8::field_stars8_avx2(self, u, v, du, dv) }
     }
 }
 

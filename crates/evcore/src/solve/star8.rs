@@ -1,0 +1,78 @@
+//! The search stars of eight model points at once on the distance field (AVX2): the 13 candidates
+//! of [`super::search`] are the vectors, the eight points their lanes.
+//!
+//! One star per call of [`crate::field::FieldLevel::add_star_avx2`] fills 13 of 16 lanes and
+//! needs the point's projection and Jacobian first, one point at a time; here the eight points'
+//! warp, projection and Jacobian run in vectors too, and every lane of every gather is used.
+
+use crate::field::FieldLevel;
+use std::arch::x86_64::*;
+
+/// The 13 values of the stars of eight points, candidate-major (vector 0 the centres, 2k+1 and
+/// 2k+2 the ± offsets of axis k), each the value [`FieldLevel::add_star`] adds for that point and
+/// candidate: the coordinate, cell, weights and bilinear blend are formed by the same operations in
+/// the same order, so the bits agree. None unless every sample's cell lies wholly inside the roi
+/// (the caller then takes the stars one by one).
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) unsafe fn field_stars8_avx2(
+    field: &FieldLevel,
+    u: __m256,
+    v: __m256,
+    du: &[__m256; 6],
+    dv: &[__m256; 6],
+) -> Option<[__m256; 13]> {
+    let roi = field.roi;
+    let (x0, y0) = (_mm256_set1_ps(roi.x0 as f32), _mm256_set1_ps(roi.y0 as f32));
+    // Level pixels relative to the roi, as `add_star` forms them: (u ± δ) − x0.
+    let mut xs = [_mm256_sub_ps(u, x0); 13];
+    let mut ys = [_mm256_sub_ps(v, y0); 13];
+    for k in 0..6 {
+        xs[2 * k + 1] = _mm256_sub_ps(_mm256_add_ps(u, du[k]), x0);
+        ys[2 * k + 1] = _mm256_sub_ps(_mm256_add_ps(v, dv[k]), y0);
+        xs[2 * k + 2] = _mm256_sub_ps(_mm256_sub_ps(u, du[k]), x0);
+        ys[2 * k + 2] = _mm256_sub_ps(_mm256_sub_ps(v, dv[k]), y0);
+    }
+    let zero = _mm256_setzero_ps();
+    let (w, h) = (
+        _mm256_set1_ps(roi.width as f32 - 1.0),
+        _mm256_set1_ps(roi.height as f32 - 1.0),
+    );
+    // Ordered comparisons: NaN fails every one and takes the general path.
+    let mut ok = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+    for (&x, &y) in xs.iter().zip(&ys) {
+        let lo = _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(x, zero),
+            _mm256_cmp_ps::<_CMP_GE_OQ>(y, zero),
+        );
+        let hi = _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_LT_OQ>(x, w),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(y, h),
+        );
+        ok = _mm256_and_ps(ok, _mm256_and_ps(lo, hi));
+    }
+    if _mm256_movemask_ps(ok) != 0xFF {
+        return None;
+    }
+    let val = field.value.as_ptr();
+    let stride = roi.width as usize;
+    let s = _mm256_set1_epi32(stride as i32);
+    Some(std::array::from_fn(|i| {
+        // Non-negative and in range inside the roi: truncation is the floor.
+        let ix = _mm256_cvttps_epi32(xs[i]);
+        let iy = _mm256_cvttps_epi32(ys[i]);
+        let ax = _mm256_sub_ps(xs[i], _mm256_cvtepi32_ps(ix));
+        let ay = _mm256_sub_ps(ys[i], _mm256_cvtepi32_ps(iy));
+        let idx = _mm256_add_epi32(_mm256_mullo_epi32(iy, s), ix);
+        // SAFETY: every lane's cell lies wholly inside the roi, so idx + stride + 1 <
+        // value.len() (the roi's area) for every lane.
+        let tap = |offset: usize| unsafe { _mm256_i32gather_ps::<4>(val.add(offset), idx) };
+        let (v00, v10, v01, v11) = (tap(0), tap(1), tap(stride), tap(stride + 1));
+        let top = _mm256_add_ps(v00, _mm256_mul_ps(ax, _mm256_sub_ps(v10, v00)));
+        let bottom = _mm256_add_ps(v01, _mm256_mul_ps(ax, _mm256_sub_ps(v11, v01)));
+        _mm256_add_ps(top, _mm256_mul_ps(ay, _mm256_sub_ps(bottom, top)))
+    }))
+}
