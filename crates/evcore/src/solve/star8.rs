@@ -60,6 +60,28 @@ pub(crate) unsafe fn field_stars8_avx2(
     let val = field.value.as_ptr();
     let stride = roi.width as usize;
     let s = _mm256_set1_epi32(stride as i32);
+    // A lane's two horizontal taps are adjacent: one 64-bit gather lane per point and row. The
+    // gathers take the points in the order 0 1 4 5 and 2 3 6 7, so that splitting the pairs into
+    // left and right taps (per 128-bit half) puts the points back in order 0..8.
+    let halves = _mm256_setr_epi32(0, 1, 4, 5, 2, 3, 6, 7);
+    let taps = |row: *const f32, idx: __m256i| {
+        let (p, q) = (
+            _mm256_castsi256_si128(idx),
+            _mm256_extracti128_si256::<1>(idx),
+        );
+        // SAFETY: every lane's cell lies wholly inside the roi, so its two taps in `row` (the
+        // cell's row or the one below) lie within `value`.
+        let (p, q) = unsafe {
+            (
+                _mm256_castsi256_ps(_mm256_i32gather_epi64::<4>(row.cast(), p)),
+                _mm256_castsi256_ps(_mm256_i32gather_epi64::<4>(row.cast(), q)),
+            )
+        };
+        (
+            _mm256_shuffle_ps::<0b10_00_10_00>(p, q),
+            _mm256_shuffle_ps::<0b11_01_11_01>(p, q),
+        )
+    };
     Some(std::array::from_fn(|i| {
         // Non-negative and in range inside the roi: truncation is the floor.
         let ix = _mm256_cvttps_epi32(xs[i]);
@@ -67,10 +89,10 @@ pub(crate) unsafe fn field_stars8_avx2(
         let ax = _mm256_sub_ps(xs[i], _mm256_cvtepi32_ps(ix));
         let ay = _mm256_sub_ps(ys[i], _mm256_cvtepi32_ps(iy));
         let idx = _mm256_add_epi32(_mm256_mullo_epi32(iy, s), ix);
-        // SAFETY: every lane's cell lies wholly inside the roi, so idx + stride + 1 <
-        // value.len() (the roi's area) for every lane.
-        let tap = |offset: usize| unsafe { _mm256_i32gather_ps::<4>(val.add(offset), idx) };
-        let (v00, v10, v01, v11) = (tap(0), tap(1), tap(stride), tap(stride + 1));
+        let idx = _mm256_permutevar8x32_epi32(idx, halves);
+        let (v00, v10) = taps(val, idx);
+        // SAFETY: the row below every cell lies inside the roi as well.
+        let (v01, v11) = taps(unsafe { val.add(stride) }, idx);
         let top = _mm256_add_ps(v00, _mm256_mul_ps(ax, _mm256_sub_ps(v10, v00)));
         let bottom = _mm256_add_ps(v01, _mm256_mul_ps(ax, _mm256_sub_ps(v11, v01)));
         _mm256_add_ps(top, _mm256_mul_ps(ay, _mm256_sub_ps(bottom, top)))
