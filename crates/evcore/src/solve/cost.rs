@@ -356,8 +356,11 @@ impl ViewMask {
         self.visible_points_in(pin, pose, points, out);
     }
 
-    /// [`Self::visible_points`] compiled for AVX2, where `f32::round` is a few inline vector
-    /// instructions instead of a libm call (the same values).
+    /// [`Self::visible_points`] compiled for AVX2, eight points at a time wherever all eight
+    /// project: their warp, projection and rounding in vectors ([`warp_project8_avx2`]; the
+    /// rounding half away from zero as `f32::round`, up to the sign of a zero, which no test
+    /// below tells apart), then the mask read for the lanes inside the image. The same points in
+    /// the same order.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn visible_points_avx2(
@@ -367,10 +370,61 @@ impl ViewMask {
         points: &[[f32; 3]],
         out: &mut Vec<[f32; 3]>,
     ) {
-        self.visible_points_in(pin, pose, points, out);
+        use std::arch::x86_64::*;
+        out.clear();
+        let chunks = points.chunks_exact(8);
+        let rest = chunks.remainder();
+        let (w, h) = (self.width as f32, self.height as f32);
+        // `f32::round`: the truncation, moved one away from zero when the dropped part is ≥ ½.
+        let round = |x: __m256| {
+            let t = _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(x);
+            let dropped = _mm256_andnot_ps(_mm256_set1_ps(-0.0), _mm256_sub_ps(x, t));
+            let away = _mm256_or_ps(_mm256_set1_ps(1.0), _mm256_and_ps(x, _mm256_set1_ps(-0.0)));
+            let up = _mm256_cmp_ps::<_CMP_GE_OQ>(dropped, _mm256_set1_ps(0.5));
+            _mm256_blendv_ps(t, _mm256_add_ps(t, away), up)
+        };
+        for chunk in chunks {
+            // SAFETY: the CPU has AVX2 and the chunk holds eight points.
+            let Some(Projected8 { u, v, .. }) = (unsafe { warp_project8_avx2(pin, pose, chunk) })
+            else {
+                self.visible_points_of(pin, pose, chunk, out);
+                continue;
+            };
+            let (x, y) = (round(u), round(v));
+            let zero = _mm256_setzero_ps();
+            // Ordered comparisons: NaN is outside, as in `contains`.
+            let inside = _mm256_and_ps(
+                _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(x, zero),
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(y, zero),
+                ),
+                _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_LT_OQ>(x, _mm256_set1_ps(w)),
+                    _mm256_cmp_ps::<_CMP_LT_OQ>(y, _mm256_set1_ps(h)),
+                ),
+            );
+            let mut lanes = _mm256_movemask_ps(inside) as u32;
+            if lanes == 0 {
+                continue;
+            }
+            let (mut xs, mut ys) = ([0i32; 8], [0i32; 8]);
+            // SAFETY: eight lanes into eight integers. Inside the image the coordinates are
+            // integers in 0..width and 0..height, so the conversion is exact.
+            unsafe {
+                _mm256_storeu_si256(xs.as_mut_ptr().cast(), _mm256_cvttps_epi32(x));
+                _mm256_storeu_si256(ys.as_mut_ptr().cast(), _mm256_cvttps_epi32(y));
+            }
+            while lanes != 0 {
+                let i = lanes.trailing_zeros() as usize;
+                lanes &= lanes - 1;
+                if self.valid[ys[i] as usize * self.width as usize + xs[i] as usize] {
+                    out.push(chunk[i]);
+                }
+            }
+        }
+        self.visible_points_of(pin, pose, rest, out);
     }
 
-    #[inline(always)]
     fn visible_points_in(
         &self,
         pin: &Pinhole,
@@ -379,6 +433,18 @@ impl ViewMask {
         out: &mut Vec<[f32; 3]>,
     ) {
         out.clear();
+        self.visible_points_of(pin, pose, points, out);
+    }
+
+    /// The points of `points` that project into the mask, appended to `out`.
+    #[inline(always)]
+    fn visible_points_of(
+        &self,
+        pin: &Pinhole,
+        pose: &Rigid32,
+        points: &[[f32; 3]],
+        out: &mut Vec<[f32; 3]>,
+    ) {
         out.extend(points.iter().copied().filter(|&x| {
             pin.project(pose.apply(x))
                 .is_some_and(|(u, v)| self.contains(u, v))
@@ -684,6 +750,60 @@ mod tests {
             out.len()
         );
         assert!(out.iter().all(|p| p[0] < 0.0));
+    }
+
+    /// The AVX2 path keeps the same points in the same order as the one-point path: ties of the
+    /// rounding (u, v on half pixels, below zero and at the far border), a lens whose mask has
+    /// holes, points behind the camera, and the tail after the last chunk of eight.
+    #[test]
+    fn visible_points_eight_at_a_time_match_one_at_a_time() {
+        let pincushion = Camera::new(
+            1280,
+            720,
+            1100.0,
+            1100.0,
+            640.0,
+            360.0,
+            [0.3, 0.0, 0.0, 0.0, 0.0],
+        )
+        .unwrap();
+        let mask = ViewMask::new(&pincushion, 2.0);
+        let check = |pin: &Pinhole, pose: &Rigid32, points: &[[f32; 3]]| {
+            let (mut one, mut wide) = (Vec::new(), Vec::new());
+            mask.visible_points_in(pin, pose, points, &mut one);
+            mask.visible_points(pin, pose, points, &mut wide);
+            assert_eq!(one, wide);
+            one.len()
+        };
+        // A unit pinhole at depth 1 puts (u, v) exactly at (x, y): every quarter pixel along the
+        // rows and columns through the corners and the centre.
+        let unit = Pinhole {
+            fx: 1.0,
+            fy: 1.0,
+            cx: 0.0,
+            cy: 0.0,
+        };
+        let identity = Rigid32::from_pose(&Isometry3::identity());
+        let quarters = |n: usize| (0..4 * n + 17).map(|i| -2.0 + 0.25 * i as f32);
+        let mut grid: Vec<[f32; 3]> = Vec::new();
+        for y in [-0.5, 0.5, 1.5, 2.5, 360.0, 716.5, 717.5, 719.5, 720.5] {
+            grid.extend(quarters(1280).map(|x| [x, y, 1.0]));
+        }
+        for x in [-0.5, 1.5, 2.5, 640.0, 1276.5, 1277.5, 1279.5] {
+            grid.extend(quarters(720).map(|y| [x, y, 1.0]));
+        }
+        grid.push([5.0, 5.0, 1.0]);
+        let n = check(&unit, &identity, &grid);
+        assert!(n > 1000 && n < grid.len() / 2, "{n} of {}", grid.len());
+        // The box model at poses across the image, partly out of it, and half behind the camera.
+        let pin = Pinhole::at_level(&pincushion, 0);
+        let truth = Isometry3::new(Vector3::new(0.01, 0.02, 0.6), Vector3::new(0.3, 0.4, 0.1));
+        let (mut points, _) = testing::visible_box_model(&truth);
+        points.truncate(points.len() / 8 * 8 + 3);
+        for (dx, dz) in [(0.0, 0.0), (0.25, 0.0), (-0.3, 0.1), (0.0, -0.6)] {
+            let pose = Isometry3::translation(dx, 0.0, dz) * truth;
+            check(&pin, &Rigid32::from_pose(&pose), &points);
+        }
     }
 
     #[test]
