@@ -302,33 +302,6 @@ impl TemplateBank {
             .collect()
     }
 
-    /// `pose` moved to nearby attitudes and depths, each with the view whose S* to use: rolled about
-    /// the line of sight through the object's centre by ±1 roll spacing, and brought nearer or
-    /// farther along that line by [`NEAR_DEPTH_RATIOS`] (the centre projects where it did). A lost
-    /// object comes back nearer or farther and turned (leave-return: Z 0.47 m lost, back at
-    /// 0.37–0.45 m turned 3–14° from the lost attitude): at the lost depth and attitude alone the
-    /// search near the lost pose put no candidate within 20 mm / 5° of it.
-    pub fn varied_near(&self, pose: &Pose) -> Vec<(Pose, usize)> {
-        let centre_c = pose * nalgebra::Point3::from(self.centre_o);
-        let at = |centre: Vector3<f64>, r: UnitQuaternion<f64>| {
-            let p = Pose::from_parts(Translation3::from(centre - r * self.centre_o), r);
-            let view = self.nearest_view(&p).0;
-            (p, view)
-        };
-        let mut out: Vec<(Pose, usize)> = NEAR_DEPTH_RATIOS
-            .iter()
-            .map(|k| at(centre_c.coords * *k, pose.rotation))
-            .collect();
-        if let Some(sight) = nalgebra::Unit::try_new(centre_c.coords, 1e-9) {
-            let step = self.params.roll_spacing_deg.to_radians();
-            for k in [-1.0, 1.0] {
-                let roll = UnitQuaternion::from_axis_angle(&sight, k * step);
-                out.push(at(centre_c.coords, roll * pose.rotation));
-            }
-        }
-        out
-    }
-
     /// The global sweep on `coarse` (a level of a field built over the whole image, `pin` its
     /// pinhole): per depth, the best `params.candidates` (pose, view index, mean field value) over
     /// views, rolls and the densest positions at that depth's scale.
@@ -394,9 +367,6 @@ impl TemplateBank {
 /// where it was lost (the robustness suite's occlusions: 20–60 mm at Z = 0.9 m, a box radius or so).
 pub const NEAR_REACH_RADII: f64 = 2.0;
 
-/// Depths (as ratios of the lost pose's) that [`TemplateBank::varied_near`] tries besides its own.
-pub const NEAR_DEPTH_RATIOS: [f64; 3] = [0.8, 0.9, 1.1];
-
 /// A global-search candidate must account for at least this share of the event mass around it
 /// to score in full (stricter than the tracker's [`crate::confidence::EXPLAINED_ENOUGH`]): on the
 /// drill and the textured box (sim, Z = 0.7 m, five attitudes), refined true poses explain
@@ -423,81 +393,6 @@ pub fn acquisition_score(e: &crate::confidence::Evidence) -> f32 {
 /// edges two attitudes explain alike (a plain cube, a box whose print is out of sight) is then
 /// never trusted from a global search: the search cannot tell which attitude it is in.
 pub const ACQUISITION_MARGIN: f32 = 1.15;
-
-/// In clutter (the background firing around the object, as around a camera braking or at rest
-/// in a textured scene) the acquisition score's plain support − chance stays low for the truth
-/// itself, while its confidence (the share of the headroom) stands far above every fit elsewhere:
-/// leave-return, the truth refined scores 0.29–0.35 against the 0.5 bar, its confidence 0.77–0.86
-/// and every other candidate's ≤ 0.26 (benches/RESULTS.md, issue 12, "Re-lock round (wip/relock8)"
-/// and "Round 9"). A candidate is also taken when its confidence is at least
-/// [`CLUTTER_CONFIDENCE`] and [`CLUTTER_MARGIN`] times every candidate's elsewhere in the same
-/// pass (its half-turn look-alikes included), and it explains at least [`CLUTTER_EXPLAINED`] of
-/// the events around it (a partial fit on a corner of the edges explains less). The bar is
-/// relative to what this image gives the other placements, not to a fixed chance model.
-pub const CLUTTER_CONFIDENCE: f32 = 0.7;
-pub const CLUTTER_MARGIN: f32 = 2.5;
-pub const CLUTTER_EXPLAINED: f32 = 0.4;
-
-/// What a refined global-search candidate scores.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Scores {
-    /// [`acquisition_score`].
-    pub acquisition: f32,
-    /// [`crate::confidence::Evidence::confidence`].
-    pub confidence: f32,
-    pub explained: f32,
-}
-
-impl Scores {
-    pub fn of(e: &crate::confidence::Evidence) -> Self {
-        Self {
-            acquisition: acquisition_score(e),
-            confidence: e.confidence(),
-            explained: e.explained,
-        }
-    }
-}
-
-/// A refined global-search candidate: its scores, pose and bank view (None: the current S*).
-#[derive(Debug, Clone, Copy)]
-pub struct Scored {
-    pub scores: Scores,
-    pub pose: Pose,
-    pub view: Option<usize>,
-}
-
-/// The candidate of a pass to take, if any, and the score it was taken on: the best by
-/// acquisition score if it reaches `reacquire_above` and [`ACQUISITION_MARGIN`] times every
-/// candidate elsewhere (not `same`), else the best by confidence if it passes the clutter test
-/// (see [`CLUTTER_CONFIDENCE`]).
-pub fn pick(
-    scored: &[Scored],
-    same: impl Fn(&Pose, &Pose) -> bool,
-    reacquire_above: f32,
-) -> Option<(usize, f32)> {
-    let best_by = |key: fn(&Scores) -> f32| {
-        let (i, b) = scored
-            .iter()
-            .enumerate()
-            .max_by(|a, b| key(&a.1.scores).total_cmp(&key(&b.1.scores)))?;
-        let rival = scored
-            .iter()
-            .filter(|c| !same(&c.pose, &b.pose))
-            .map(|c| key(&c.scores))
-            .fold(0.0, f32::max);
-        Some((i, key(&b.scores), rival))
-    };
-    if let Some((i, a, rival)) = best_by(|k| k.acquisition) {
-        if a >= reacquire_above && a >= ACQUISITION_MARGIN * rival {
-            return Some((i, a));
-        }
-    }
-    let (i, c, rival) = best_by(|k| k.confidence)?;
-    (c >= CLUTTER_CONFIDENCE
-        && c >= CLUTTER_MARGIN * rival
-        && scored[i].scores.explained >= CLUTTER_EXPLAINED)
-        .then_some((i, c))
-}
 
 /// Mean field value over the projected `points`, or None as soon as it must exceed `give_up`.
 fn chamfer(
@@ -712,50 +607,6 @@ mod tests {
     }
 
     /// A 15 cm grey cube and its template bank (default spacing and depths).
-    #[test]
-    fn in_clutter_the_truth_is_taken_on_its_confidence_only_when_it_stands_far_above_the_rest() {
-        // Scores as measured in the robustness suite's leave-return episode (wip/relock9, 1.56 s):
-        // the truth refined, and the best fits elsewhere.
-        let at =
-            |x: f64| Pose::from_parts(Translation3::new(x, 0.0, 0.5), UnitQuaternion::identity());
-        let cand = |x: f64, acquisition: f32, confidence: f32, explained: f32| Scored {
-            scores: Scores {
-                acquisition,
-                confidence,
-                explained,
-            },
-            pose: at(x),
-            view: None,
-        };
-        let same = |a: &Pose, b: &Pose| distance(a, b).0 < 0.02;
-        let truth = cand(0.0, 0.23, 0.82, 0.56);
-        let rivals = [cand(0.3, 0.02, 0.12, 0.5), cand(-0.4, 0.21, 0.26, 0.7)];
-        let mut pass = vec![truth];
-        pass.extend(rivals);
-        assert_eq!(pick(&pass, same, 0.5), Some((0, 0.82)));
-        // Beside itself (a fit 1 cm off) it still stands out.
-        pass.push(cand(0.01, 0.2, 0.8, 0.55));
-        assert_eq!(pick(&pass, same, 0.5).map(|p| p.0), Some(0));
-        // A look-alike elsewhere at 0.4 (a box the other way round) and it does not.
-        pass.push(cand(0.2, 0.1, 0.4, 0.6));
-        assert_eq!(pick(&pass, same, 0.5), None);
-        // Nor does a partial fit that leaves most of the events around it unexplained, nor a
-        // merely likelier pose.
-        assert_eq!(
-            pick(&[cand(0.0, 0.2, 0.82, 0.3), rivals[0]], same, 0.5),
-            None
-        );
-        assert_eq!(
-            pick(&[cand(0.0, 0.2, 0.6, 0.6), rivals[0]], same, 0.5),
-            None
-        );
-        // The absolute rule is unchanged: a high acquisition score 1.15 times every rival's.
-        let clear = [cand(0.0, 0.6, 0.5, 0.9), cand(0.3, 0.5, 0.5, 0.9)];
-        assert_eq!(pick(&clear, same, 0.5), Some((0, 0.6)));
-        let close = [cand(0.0, 0.6, 0.5, 0.9), cand(0.3, 0.55, 0.5, 0.9)];
-        assert_eq!(pick(&close, same, 0.5), None);
-    }
-
     fn cube_bank(cam: &Camera) -> (Mesh, TemplateBank) {
         let mesh = test_cube(0.15, Shading::Constant(0.8));
         let bank = TemplateBank::render(

@@ -38,7 +38,7 @@ use crate::solve::lm::{lm_pyramid, LmParams, LmReport};
 use crate::solve::search::{axis_steps, search_step, Gate};
 use crate::solve::{Schedule, SolverMode, StepKind};
 use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
-use crate::templates::{acquisition_score, camera_direction_o, pick, Scored, Scores, TemplateBank};
+use crate::templates::{acquisition_score, camera_direction_o, TemplateBank, ACQUISITION_MARGIN};
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::sync::atomic::{fence, AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -343,12 +343,6 @@ const SWEEP_MAX_WIDTH: usize = 200;
 /// Global-search candidates scoring at least this are refined again with S* of their nearest view
 /// (see `Solver::refine`).
 const RESCORE_ABOVE: f32 = 0.25;
-
-/// A global pass's best candidate scoring at least this (acquisition score) is searched around
-/// by the next passes: the sweep's best fit often sits on the object at a neighbouring attitude
-/// (start-without-pose: 69–152 mm off, scoring 0.19–0.20, the truth 0.64–0.69 when refined), and
-/// the sweep alone rarely puts a seed within LM's reach of the truth.
-const HINT_ABOVE: f32 = 0.15;
 
 /// Placements of the lost pose shifted across the image (see `TemplateBank::search_near`) refined
 /// per global pass.
@@ -923,9 +917,6 @@ pub struct Solver {
     any_pass: PassClock,
     /// The last pose trusted (the object was there when it was lost).
     trusted_pose: Option<Pose>,
-    /// The best candidate of the last global pass that was not taken (scoring at least
-    /// [`HINT_ABOVE`]): the next passes also search around it (see `Solver::global_candidates`).
-    hint: Option<Pose>,
     /// The sweep's field when the coarsest level is wider than `SWEEP_MAX_WIDTH` (one level,
     /// OR-pooled from the coarsest; built lazily).
     sweep_field: Option<DistanceField>,
@@ -1080,7 +1071,6 @@ impl Solver {
             near_pass: PassClock::default(),
             any_pass: PassClock::default(),
             trusted_pose: None,
-            hint: None,
             pending: None,
             sweep_field: None,
             claim: Claim::default(),
@@ -1147,7 +1137,6 @@ impl Solver {
         self.active_at = None;
         self.pending = None;
         self.trusted_pose = None;
-        self.hint = None;
         self.motion.reset();
         self.schedule.restart();
         self.publish();
@@ -1337,7 +1326,6 @@ impl Solver {
             self.searching = false;
             self.pending = None;
             self.trusted_pose = Some(accepted);
-            self.hint = None;
             self.follow_view(&accepted);
         }
         self.last = Estimate {
@@ -1663,32 +1651,21 @@ impl Solver {
             // Around where the object was last trusted (the camera stopped there) and where
             // the local steps took the pose since (a tracked pose drifts while the object is
             // hidden or drowned in noise: pure-noise, 35 mm / 30° at its end).
-            let mut anchors: Vec<Pose> = Vec::new();
+            let mut anchors = Vec::new();
             if self.had_pose {
                 anchors.push(self.last.pose);
+                anchors.extend(
+                    self.trusted_pose
+                        .filter(|p| !same_place(p, &self.last.pose)),
+                );
             }
-            for p in [self.trusted_pose, self.hint].into_iter().flatten() {
-                if anchors.iter().all(|a| !same_place(a, &p)) {
-                    anchors.push(p);
-                }
-            }
-            // At the anchor's attitude and depth its best few placements; at the attitudes and
-            // depths around it (see `TemplateBank::varied_near`), the best placement of each.
             for anchor in anchors {
                 let view = bank.nearest_view(&anchor).0;
-                let varied = bank
-                    .varied_near(&anchor)
-                    .into_iter()
-                    .map(|(p, v)| (p, v, 1));
-                for (pose, view, n) in
-                    std::iter::once((anchor, view, NEAR_CANDIDATES)).chain(varied)
-                {
-                    seeds.extend(
-                        bank.search_near(level, &pin, &pose, view, n)
-                            .into_iter()
-                            .map(|(pose, cost)| (pose, Some(view), cost)),
-                    );
-                }
+                seeds.extend(
+                    bank.search_near(level, &pin, &anchor, view, NEAR_CANDIDATES)
+                        .into_iter()
+                        .map(|(pose, cost)| (pose, Some(view), cost)),
+                );
             }
         }
         for &(p, v) in extra {
@@ -1803,38 +1780,29 @@ impl Solver {
         let (t_us, pushed_ns) = self.newest();
         let n_events = self.out.ingested.load(Ordering::Relaxed);
         let pending = self.pending.take();
-        let as_scored = |c: Candidate| Scored {
-            scores: Scores::of(&c.evidence),
-            pose: c.pose,
-            view: c.view,
-        };
-        let mut scored: Vec<Scored> = self
+        let mut scored: Vec<(f32, Pose, Option<usize>)> = self
             .global_candidates(bank, t_us, &[], pass)
             .unwrap_or_default()
             .into_iter()
-            .map(as_scored)
+            .map(|c| (acquisition_score(&c.evidence), c.pose, c.view))
             .collect();
-        // The candidates that could be taken have look-alikes the sweep may have missed: the object
-        // turned half a turn about one of its axes through its centre (a box's outline is the same
-        // then; only its print tells). They are refined and scored too, so that the margins of
-        // `templates::pick` weigh the truth against them whichever of them the sweep found. The
-        // most confident candidate's always: the sweep often finds a box the wrong way round
-        // (start-without-pose: 44 mm / 175° from the truth, confidence 0.51, where the truth
-        // refined scores 0.77 and no other candidate came near it).
-        let promising = |s: &[Scored]| {
-            let by = |key: fn(&Scores) -> f32, bar: f32| {
-                s.iter()
-                    .max_by(|a, b| key(&a.scores).total_cmp(&key(&b.scores)))
-                    .filter(|c| key(&c.scores) >= bar)
-                    .map(|c| c.pose)
-            };
-            let absolute = by(|k| k.acquisition, self.config.reacquire_above);
-            let confident = by(|k| k.confidence, 0.0);
-            let mut out: Vec<Pose> = absolute.into_iter().collect();
-            out.extend(confident.filter(|r| absolute.is_none_or(|a| !same_place(&a, r))));
-            out
+        let top = |scored: &[(f32, Pose, Option<usize>)]| {
+            scored
+                .iter()
+                .copied()
+                .fold(None, |b: Option<(f32, Pose, Option<usize>)>, c| {
+                    if b.as_ref().is_none_or(|b| c.0 > b.0) {
+                        Some(c)
+                    } else {
+                        b
+                    }
+                })
         };
-        for pose in promising(&scored) {
+        // A candidate good enough to take has look-alikes the sweep may have missed: the object
+        // turned half a turn about one of its axes through its centre (a box's outline is the same
+        // then; only its print tells). They are refined and scored too, so that the margin below
+        // weighs the truth against them whichever of them the sweep found.
+        if let Some((_, pose, _)) = top(&scored).filter(|b| b.0 >= self.config.reacquire_above) {
             let c = bank.centre_o();
             for axis in [Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()] {
                 let turn = UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI);
@@ -1842,27 +1810,27 @@ impl Solver {
                 let seed = pose * about;
                 let view = bank.nearest_view(&seed).0;
                 if let Some(k) = self.refine(bank, seed, Some(view), f32::NAN) {
-                    scored.push(as_scored(k));
+                    scored.push((acquisition_score(&k.evidence), k.pose, k.view));
                 }
             }
         }
-        let hint = scored
-            .iter()
-            .max_by(|a, b| a.scores.acquisition.total_cmp(&b.scores.acquisition))
-            .filter(|b| b.scores.acquisition >= HINT_ABOVE)
-            .map(|b| b.pose);
-        // The taken candidate must stand out from every fit elsewhere: an outline that two poses
-        // explain alike (a box turned 180°) is not evidence for either.
-        let best = pick(&scored, same_place, self.config.reacquire_above)
-            .map(|(i, c)| (c, scored[i].pose, scored[i].view));
+        let best = top(&scored);
+        // The best must stand out from every fit elsewhere: an outline that two poses explain
+        // alike (a box turned 180°) is not evidence for either.
+        let rival = best.map_or(0.0, |b| {
+            scored
+                .iter()
+                .filter(|c| !same_place(&c.1, &b.1))
+                .map(|c| c.0)
+                .fold(0.0, f32::max)
+        });
+        let best = best.filter(|b| b.0 >= ACQUISITION_MARGIN * rival);
         self.stamp((t_us, pushed_ns));
         self.last.n_events = n_events;
         self.last.step = StepKind::Lm;
         self.last.confidence = best.map_or(0.0, |b| b.0);
         self.last.lost = true;
-        self.hint = hint;
-        if let Some((c, pose, view)) = best {
-            self.hint = None;
+        if let Some((c, pose, view)) = best.filter(|b| b.0 >= self.config.reacquire_above) {
             // Trusted only once a later pass finds it again where the local steps took it on the
             // new events: a fit that one pass's events happen to allow, on noise or on part of the
             // edges, rarely survives the next. Until then it is tracked, still lost: the object
@@ -2034,7 +2002,6 @@ impl TrackerCore {
         s.searching = true;
         s.had_pose = false;
         s.trusted_pose = None;
-        s.hint = None;
         s.pending = None;
         s.full_pass = PassClock::default();
         s.near_pass = PassClock::default();
