@@ -391,18 +391,8 @@ impl ViewMask {
                 continue;
             };
             let (x, y) = (round(u), round(v));
-            let zero = _mm256_setzero_ps();
-            // Ordered comparisons: NaN is outside, as in `contains`.
-            let inside = _mm256_and_ps(
-                _mm256_and_ps(
-                    _mm256_cmp_ps::<_CMP_GE_OQ>(x, zero),
-                    _mm256_cmp_ps::<_CMP_GE_OQ>(y, zero),
-                ),
-                _mm256_and_ps(
-                    _mm256_cmp_ps::<_CMP_LT_OQ>(x, _mm256_set1_ps(w)),
-                    _mm256_cmp_ps::<_CMP_LT_OQ>(y, _mm256_set1_ps(h)),
-                ),
-            );
+            // NaN is outside, as in `contains`.
+            let inside = crate::field::lanes_in_box_avx2(x, y, w, h);
             let mut lanes = _mm256_movemask_ps(inside) as u32;
             if lanes == 0 {
                 continue;

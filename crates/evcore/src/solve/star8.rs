@@ -36,23 +36,11 @@ pub(crate) unsafe fn field_stars8_avx2(
         xs[2 * k + 2] = _mm256_sub_ps(_mm256_sub_ps(u, du[k]), x0);
         ys[2 * k + 2] = _mm256_sub_ps(_mm256_sub_ps(v, dv[k]), y0);
     }
-    let zero = _mm256_setzero_ps();
-    let (w, h) = (
-        _mm256_set1_ps(roi.width as f32 - 1.0),
-        _mm256_set1_ps(roi.height as f32 - 1.0),
-    );
-    // Ordered comparisons: NaN fails every one and takes the general path.
+    let (w, h) = (roi.width as f32 - 1.0, roi.height as f32 - 1.0);
+    // NaN fails and takes the general path.
     let mut ok = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
     for (&x, &y) in xs.iter().zip(&ys) {
-        let lo = _mm256_and_ps(
-            _mm256_cmp_ps::<_CMP_GE_OQ>(x, zero),
-            _mm256_cmp_ps::<_CMP_GE_OQ>(y, zero),
-        );
-        let hi = _mm256_and_ps(
-            _mm256_cmp_ps::<_CMP_LT_OQ>(x, w),
-            _mm256_cmp_ps::<_CMP_LT_OQ>(y, h),
-        );
-        ok = _mm256_and_ps(ok, _mm256_and_ps(lo, hi));
+        ok = _mm256_and_ps(ok, crate::field::lanes_in_box_avx2(x, y, w, h));
     }
     if _mm256_movemask_ps(ok) != 0xFF {
         return None;
