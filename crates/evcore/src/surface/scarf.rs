@@ -216,10 +216,7 @@ fn set_last(last: &[AtomicU64], p: usize, seq: u16) {
     let word = &last[p / 4];
     let shift = 16 * (p % 4);
     let old = word.load(Relaxed);
-    word.store(
-        old & !(0xffff << shift) | u64::from(seq) << shift,
-        Relaxed,
-    );
+    word.store(old & !(0xffff << shift) | u64::from(seq) << shift, Relaxed);
 }
 
 impl Shared {
@@ -276,7 +273,13 @@ impl Scarf {
             fifo_len: geometry.fifo_len as u16,
             row_of: RowOf::new(width),
             cols: axis_table(width, geometry.block_w, geometry.grid_w, -1, 1),
-            rows: axis_table(height, geometry.block_h, geometry.grid_h, -1, padded_w as u32),
+            rows: axis_table(
+                height,
+                geometry.block_h,
+                geometry.grid_h,
+                -1,
+                padded_w as u32,
+            ),
             seqs: (0..n_padded).map(|_| AtomicU16::new(0)).collect(),
             last: (0..n_pixels.div_ceil(4))
                 .map(|_| AtomicU64::new(0))
@@ -348,7 +351,12 @@ impl ScarfWriter {
             }
             let (x, y) = row_of.split(p);
             // SAFETY: p < width·height, so x < width = cols.len() and y < height = rows.len().
-            let (c, r) = unsafe { (cols.get_unchecked(x as usize), rows.get_unchecked(y as usize)) };
+            let (c, r) = unsafe {
+                (
+                    cols.get_unchecked(x as usize),
+                    rows.get_unchecked(y as usize),
+                )
+            };
             let fed = [
                 r.own + c.own,
                 r.side + c.own,
@@ -478,7 +486,12 @@ impl ScarfReader {
             lasts.clear();
             for w in &s.last[start / 4..(start + dst.len()).div_ceil(4)] {
                 let v = w.load(Relaxed);
-                lasts.extend([v as u16, (v >> 16) as u16, (v >> 32) as u16, (v >> 48) as u16]);
+                lasts.extend([
+                    v as u16,
+                    (v >> 16) as u16,
+                    (v >> 32) as u16,
+                    (v >> 48) as u16,
+                ]);
             }
             let row = seq_row.iter().zip(&lasts[start % 4..]).zip(&fifo_row);
             for (d, ((&seq, &last), &n)) in dst.iter_mut().zip(row) {
@@ -515,7 +528,6 @@ impl EventSurface for Scarf {
         self.writer.reset();
     }
 }
-
 
 #[cfg(test)]
 mod tests {
@@ -882,7 +894,11 @@ mod tests {
                 assert_eq!(v, u8::from(reader.is_active(x, y)), "{roi:?} ({x}, {y})");
             }
         }
-        assert!(reader.active_count() > 2000, "a well-filled set: {}", reader.active_count());
+        assert!(
+            reader.active_count() > 2000,
+            "a well-filled set: {}",
+            reader.active_count()
+        );
     }
 
     #[test]
