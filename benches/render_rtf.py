@@ -165,6 +165,9 @@ def replay(inputs: str, counts_out: str) -> None:
             None if arms is None else occ[k],
         )
         np.add.at(counts, ev["y"].astype(np.int64) * cam.width + ev["x"], 1)
+    # The ticks after the last render (a build that renders only every few ticks).
+    for ev in getattr(src, "flush", list)():
+        np.add.at(counts, ev["y"].astype(np.int64) * cam.width + ev["x"], 1)
     cpu = cpu_s() - c0
     sim_s = (t[-1] - t[0]) * 1e-6
     np.save(counts_out, counts)

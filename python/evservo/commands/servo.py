@@ -111,9 +111,10 @@ def add_episode_arguments(p: argparse.ArgumentParser, **defaults: object) -> Non
     )
     p.add_argument(
         "--events",
-        choices=("edges", "render", "render-lab"),
-        help="event source: the model's edges (fast), the rendered event camera (slow), or the rendered camera "
-        f"with the lab preset (mains flicker, clutter) {d('event_source')}",
+        choices=("edges", "render", "render-lab", "render-every-tick"),
+        help="event source: the model's edges (fast), the rendered event camera (slow), the rendered camera "
+        "with the lab preset (mains flicker, clutter), or the rendered camera rendering every 1 ms tick (the "
+        f"reference for render's interpolation between renders) {d('event_source')}",
     )
     p.add_argument(
         "--render-arms",
