@@ -42,6 +42,11 @@
 //!   rest ([`EventSimulator::step_tiles`]), catching skipped pixels up on leak. The events equal
 //!   the reference path's (`set_sparse(false)`: full frames while the background moves, the
 //!   changed region otherwise) bit for bit without leak, up to f32 rounding with it (tested).
+//! * **Interpolated ticks** ([`SimCamera::advance_ticks`]). One render can stand for several
+//!   sensor steps: the sensor is stepped at each given earlier tick on the intensities
+//!   interpolated linearly in time between the previous render and this one (ESIM's
+//!   interpolation between renders), with the flicker gain of each tick, so the sensor model still
+//!   sees time in ticks while the scene is drawn only when it has moved enough to matter.
 //! * **Occluders.** Further meshes (e.g. the robot arms) set by [`SimCamera::set_occluders`] and
 //!   posed per frame in [`SimCamera::advance_scene`] are rendered with the object into one
 //!   z-tested buffer, shaded like the object. An occluder whose pose changed since the previous
@@ -950,8 +955,8 @@ impl SimCamera {
                 }
             });
         if self.flickers() {
-            // Every lit pixel changes; tiles that see nothing stay dark. (The interpolation below
-            // reads the flags too, and only ever touches tiles whose raw values changed.)
+            // Every lit pixel changes, so every tile that sees something is stepped; only the
+            // redrawn ones differ between the two renders and are interpolated.
             let redrawn = std::mem::take(&mut self.changed);
             self.changed = self.tile_boxes.iter().map(Option::is_some).collect();
             self.step_between(&redrawn, (ticks, t_us), out)?;
