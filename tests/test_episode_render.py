@@ -88,3 +88,24 @@ def test_rendering_every_few_ticks_keeps_the_closed_loops_tracking_error():
     assert ref["completed"] and fast["completed"], (ref, fast)
     assert abs(fast["gt_track_pos_rms_mm"] - ref["gt_track_pos_rms_mm"]) < 0.3, (ref, fast)
     assert abs(fast["gt_track_rot_rms_deg"] - ref["gt_track_rot_rms_deg"]) < 0.15, (ref, fast)
+
+
+def test_a_jump_first_renders_the_ticks_waiting_at_the_old_pose(camera):
+    # The object drifts a tenth of a pixel a tick, so ticks wait for a render; then it jumps away (an
+    # occluder hides it). The waiting ticks are rendered at once with the object where it was, and their
+    # events lead the next batch: nothing is lost and the stream stays in time order.
+    from conftest import box_start_pose
+
+    T0 = box_start_pose(0.6)
+    src = RenderedSource(camera, "box", T0, 0, seed=3)
+    drift = [geometry.pose((4e-5 * k, 0.0, 0.0)) @ T0 for k in range(4)]
+    waited = [src.events_until(1000 * k, drift[k]) for k in (1, 2, 3)]
+    assert src.covered_us == 0 and not any(len(w) for w in waited)
+    away = T0.copy()
+    away[0, 3] += 50.0
+    src.jump(away)
+    assert src.covered_us == 3000
+    ev = src.events_until(4000, away)
+    assert src.covered_us == 4000 and np.all(np.diff(ev["t"]) >= 0)
+    # The drift fired over the three waiting ticks; the box vanishing fires in the fourth.
+    assert (ev["t"] < 3000).sum() > 100 and (ev["t"] >= 3000).sum() > 1000

@@ -123,6 +123,8 @@ class RenderedSource:
         self._pending: tuple[int, np.ndarray, np.ndarray, np.ndarray | None, float] | None = None
         self._ticks: list[int] = []
         self._early: list[np.ndarray] = []
+        # After a jump the view changed by more than any motion bound: the next tick is rendered.
+        self._jumped = False
         if arms is not None:
             self.sim.set_occluders(arms.core_meshes())
             self.occ = arms.camera_poses()
@@ -137,7 +139,7 @@ class RenderedSource:
         """Show the object at ``T_c_o`` from the next batch on without sweeping it there (it vanishes
         behind an occluder or reappears from behind one; see :mod:`evservo.sim.disturb`)."""
         self._early.extend(self.flush())
-        self.T_c_o = T_c_o
+        self.T_c_o, self._jumped = T_c_o, True
 
     def flush(self) -> list[np.ndarray]:
         """Render the tick still waiting (if any) and return its events (none handed out before)."""
@@ -166,7 +168,12 @@ class RenderedSource:
 
     def _can_wait(self, t_us: int, moved_px: float) -> bool:
         """Whether a tick at ``t_us``, ``moved_px`` from the last render, may wait for a later one."""
-        return self.interpolate and moved_px <= self.MAX_STEP_PX and t_us - self.t_us < self.MAX_GAP_US
+        return (
+            self.interpolate
+            and not self._jumped
+            and moved_px <= self.MAX_STEP_PX
+            and t_us - self.t_us < self.MAX_GAP_US
+        )
 
     def events_until(
         self, t_us: int, T_c_o: np.ndarray, T_w_c: np.ndarray | None = None, occluders: np.ndarray | None = None
@@ -200,7 +207,7 @@ class RenderedSource:
         """Render from the last render to the poses at ``t1`` (µs), in sub-steps of at most half a
         pixel, stepping the sensor at the waiting ticks on the way, and return the events of
         ``[last render, t1)``."""
-        t0, ticks, self._ticks = self.t_us, self._ticks, []
+        t0, ticks, self._ticks, self._jumped = self.t_us, self._ticks, [], False
         n = 1 if not np.isfinite(moved_px) else int(min(t1 - t0, max(1, np.ceil(moved_px / self.MAX_STEP_PX))))
         # Ticks wait only for a render within half a pixel: one step, which takes them all.
         assert n == 1 or not ticks, (n, ticks)
