@@ -2,15 +2,27 @@
 the world-fixed background streams past, and EDFT+ holds the object throughout."""
 
 import numpy as np
+import pytest
 
 from evservo import geometry
 from evservo.sim.episode import EpisodeConfig, run_episode, summarize
-from evservo.sim.sources import RenderedSource
+from evservo.sim.sources import RenderedSource, make_event_source
 
 
-def test_rendered_closed_loop_holds_tracking():
-    cfg = EpisodeConfig(duration_s=0.3, distance_m=0.9, speed_mps=0.3, cost_model="fixed", event_source="render")
-    result = run_episode(cfg)
+def episode(source: str):
+    return run_episode(
+        EpisodeConfig(duration_s=0.3, distance_m=0.9, speed_mps=0.3, cost_model="fixed", event_source=source)
+    )
+
+
+@pytest.fixture(scope="module")
+def reference_episode():
+    """The closed loop on the reference ``render`` source (a render per tick), run once for this module."""
+    return episode("render")
+
+
+def test_rendered_closed_loop_holds_tracking(reference_episode):
+    result = reference_episode
     s = summarize(result)
     assert s["completed"], s
     assert s["gt_track_pos_rms_mm"] < 3.0 and s["gt_track_rot_rms_deg"] < 1.0, s
@@ -23,7 +35,7 @@ def test_rendered_source_sees_the_background_when_only_the_camera_moves(camera):
     from conftest import box_start_pose
 
     T_c_o = box_start_pose(0.6)
-    src = RenderedSource(camera, "box", T_c_o, 0, seed=0)
+    src = RenderedSource(camera, "box", T_c_o, 0, seed=0, interpolate=True)
     T_w_c = np.eye(4)
     still = src.events_until(1000, T_c_o, T_w_c)
     # Move the camera 2 mm sideways but keep the object fixed relative to it (perfect servoing).
@@ -77,14 +89,10 @@ def test_renders_every_few_ticks_give_the_events_of_a_render_per_tick(camera):
     assert np.abs(fast - ref).sum() < 0.12 * ref.sum()
 
 
-def test_rendering_every_few_ticks_keeps_the_closed_loops_tracking_error():
+def test_rendering_every_few_ticks_keeps_the_closed_loops_tracking_error(reference_episode):
     # The episode of test_rendered_closed_loop_holds_tracking on the reference (a render per tick) and
-    # on the default source, which hands the tracker the ticks between renders late, together.
-    cfgs = [
-        EpisodeConfig(duration_s=0.2, distance_m=0.9, speed_mps=0.3, cost_model="fixed", event_source=src)
-        for src in ("render-every-tick", "render")
-    ]
-    ref, fast = (summarize(run_episode(c)) for c in cfgs)
+    # on render-fast, which hands the tracker the ticks between renders late, together.
+    ref, fast = summarize(reference_episode), summarize(episode("render-fast"))
     assert ref["completed"] and fast["completed"], (ref, fast)
     assert abs(fast["gt_track_pos_rms_mm"] - ref["gt_track_pos_rms_mm"]) < 0.3, (ref, fast)
     assert abs(fast["gt_track_rot_rms_deg"] - ref["gt_track_rot_rms_deg"]) < 0.15, (ref, fast)
@@ -97,7 +105,7 @@ def test_a_jump_first_renders_the_ticks_waiting_at_the_old_pose(camera):
     from conftest import box_start_pose
 
     T0 = box_start_pose(0.6)
-    src = RenderedSource(camera, "box", T0, 0, seed=3)
+    src = RenderedSource(camera, "box", T0, 0, seed=3, interpolate=True)
     drift = [geometry.pose((4e-5 * k, 0.0, 0.0)) @ T0 for k in range(4)]
     waited = [src.events_until(1000 * k, drift[k]) for k in (1, 2, 3)]
     assert src.covered_us == 0 and not any(len(w) for w in waited)
@@ -109,3 +117,15 @@ def test_a_jump_first_renders_the_ticks_waiting_at_the_old_pose(camera):
     assert src.covered_us == 4000 and np.all(np.diff(ev["t"]) >= 0)
     # The drift fired over the three waiting ticks; the box vanishing fires in the fourth.
     assert (ev["t"] < 3000).sum() > 100 and (ev["t"] >= 3000).sum() > 1000
+
+
+def test_render_hands_out_each_tick_at_once_and_render_fast_waits(camera):
+    # `render` is the reference the latency figures rest on: each tick's events come out at that tick.
+    # `render-fast` holds a tick that moved less than half a pixel for a later render.
+    from conftest import box_start_pose
+
+    T0 = box_start_pose(0.6)
+    moved = geometry.pose((4e-5, 0.0, 0.0)) @ T0
+    ref, fast = (make_event_source(name, camera, "box", T0, 0, seed=3) for name in ("render", "render-fast"))
+    assert len(ref.events_until(1000, moved)) > 100 and ref.covered_us == 1000
+    assert len(fast.events_until(1000, moved)) == 0 and fast.covered_us == 0

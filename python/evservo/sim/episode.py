@@ -15,9 +15,9 @@ Everything runs on the scene's simulated 1 kHz clock, in this order per millisec
 3. the arms move one tick;
 4. the event source turns the true relative pose ``T_c_o`` at the new time into the events of the
    last millisecond, which reach the tracker ``sensing_latency_s`` later (3.5 ms measured in the
-   paper), unless an injected dropout swallows them; the rendered source renders only when something
-   may have moved half a pixel and hands out the ticks in between with that render (ESIM's adaptive
-   sampling, :class:`~evservo.sim.sources.RenderedSource`), so its events can be a few ticks later;
+   paper), unless an injected dropout swallows them; the ``render-fast`` source renders only when
+   something may have moved half a pixel and hands out the ticks in between with that render (ESIM's
+   adaptive sampling, :class:`~evservo.sim.sources.RenderedSource`), so its events can be up to 5 ms later;
 5. the synchronous tracker runs on the same clock: whenever it is free it takes every batch that
    has arrived and runs one step (one LM or one search step of the cascade); the step's compute
    time, measured or from a fixed cost model, is *charged to the clock*, so its pose is published

@@ -6,9 +6,9 @@ source on every batch even while it drops the output (an injected dropout), so a
 whatever per-pixel state it needs.
 
 Sources are registered by name in :data:`EVENT_SOURCES`; a new one (e.g. a rendered ESIM camera) is
-a callable with the :class:`SourceFactory` signature added there. The ``render`` source can also draw
-the robot arms (``make_event_source(..., arms=ArmMeshes(scene))``); its ``events_until`` then also
-takes the links' poses in the camera (``occluders``).
+a callable with the :class:`SourceFactory` signature added there. The rendered sources
+(:data:`RENDERED_SOURCES`) can also draw the robot arms (``make_event_source(..., arms=ArmMeshes(scene))``);
+their ``events_until`` then also takes the links' poses in the camera (``occluders``).
 """
 
 from __future__ import annotations
@@ -70,15 +70,16 @@ class RenderedSource:
     The background plane is fixed in the world, 0.6 m behind the object's start position, so when the
     camera follows the object the world behind it streams past and fires, as on the real bench.
 
-    Renders follow ESIM's adaptive sampling (Rebecq et al. 2018): a new frame is rendered only once
-    something in view could move more than :attr:`MAX_STEP_PX` (half a pixel) since the last one, or
-    :attr:`MAX_GAP_US` have passed. The sensor is still stepped at every tick in between, on each
-    pixel's intensity interpolated linearly in time between the two renders (exact for an edge
-    crossing a pixel's bilinear ramp at constant speed; the lighting's flicker is applied per tick),
-    so only the drawing is saved. The events of the ticks in between are therefore handed out with
-    the next render, late by up to :attr:`MAX_GAP_US`: :attr:`covered_us` says how far the events
-    handed out are complete. A tick that moves more than half a pixel is split into sub-steps at
-    interpolated poses. ``interpolate=False`` renders at every call (the reference path).
+    By default every call is rendered (the reference: a tick's events reach the caller at that tick),
+    split into sub-steps at interpolated poses when something in view moves more than
+    :attr:`MAX_STEP_PX` (half a pixel). ``interpolate=True`` (the ``render-fast`` source) follows ESIM's
+    adaptive sampling (Rebecq et al. 2018): a new frame is rendered only once something in view could
+    move more than half a pixel since the last one, or :attr:`MAX_GAP_US` have passed. The sensor is
+    still stepped at every tick in between, on each pixel's intensity interpolated linearly in time
+    between the two renders (exact for an edge crossing a pixel's bilinear ramp at constant speed;
+    the lighting's flicker is applied per tick), so only the drawing is saved. The events of the ticks
+    in between are therefore handed out with the next render, late by up to :attr:`MAX_GAP_US`:
+    :attr:`covered_us` says how far the events handed out are complete.
 
     With ``arms`` (:class:`~evservo.sim.arms.ArmMeshes`) the robot arms are drawn too, z-tested against
     the object and the background: :meth:`events_until` then takes the links' poses in the camera at
@@ -101,7 +102,7 @@ class RenderedSource:
         seed: int,
         arms: ArmMeshes | None = None,
         realism: str = "imx636",
-        interpolate: bool = True,
+        interpolate: bool = False,
     ) -> None:
         from evservo.models import load_object, to_core_mesh
         from evservo.sim.record import background_pose
@@ -239,13 +240,15 @@ def _between(T_a: np.ndarray, T_b: np.ndarray, s: float) -> np.ndarray:
 
 EVENT_SOURCES: dict[str, SourceFactory] = {
     "edges": edge_source,
+    # The reference: a render per tick, each tick's events handed out at that tick.
     "render": RenderedSource,
+    # The same camera rendered only every half pixel of image motion, the sensor stepped every tick in
+    # between: faster, but a tick's events reach the tracker with the next render, up to 5 ms late.
+    "render-fast": partial(RenderedSource, interpolate=True),
     "render-lab": partial(RenderedSource, realism="lab"),
-    # The reference for ``render``'s interpolation between renders: one render per tick.
-    "render-every-tick": partial(RenderedSource, interpolate=False),
 }
 # The sources that render the scene (and can draw the arms).
-RENDERED_SOURCES = ("render", "render-lab", "render-every-tick")
+RENDERED_SOURCES = ("render", "render-fast", "render-lab")
 
 
 def make_event_source(
@@ -258,7 +261,7 @@ def make_event_source(
     arms: ArmMeshes | None = None,
 ) -> EventSource:
     """The source registered as ``name``, starting at ``t0_us`` (µs) with the object at ``T_c_o0``;
-    ``arms``: also draw the robot arms (the ``render`` source only)."""
+    ``arms``: also draw the robot arms (the rendered sources, :data:`RENDERED_SOURCES`, only)."""
     if name not in EVENT_SOURCES:
         raise ValueError(f"unknown event source {name!r}; choose one of {sorted(EVENT_SOURCES)}")
     if arms is not None:
