@@ -38,7 +38,9 @@ use crate::solve::lm::{lm_pyramid, LmParams, LmReport};
 use crate::solve::search::{axis_steps, search_step, Gate};
 use crate::solve::{Schedule, SolverMode, StepKind};
 use crate::surface::{split_surface, FlickerFilter, FrontEnd, SurfaceReader, SurfaceWriter};
-use crate::templates::{acquisition_score, camera_direction_o, TemplateBank, ACQUISITION_MARGIN};
+use crate::templates::{
+    acquisition_score, camera_direction_o, pool_above_background, TemplateBank, ACQUISITION_MARGIN,
+};
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::sync::atomic::{fence, AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -1634,13 +1636,11 @@ impl Solver {
         let mut seeds: Vec<(Pose, Option<usize>, f32)> = vec![(self.last.pose, None, f32::NAN)];
         let coarsest = levels - 1;
         if pass != Pass::Confirm {
-            let (level, pin) = match self.sweep_level(coarsest) {
-                Some(level) => (
-                    self.sweep_field.as_ref()?.level(0),
-                    Pinhole::at_level(&self.rect, level),
-                ),
-                None => (self.field.level(coarsest), self.pins[coarsest as usize]),
-            };
+            let level = self.sweep_level(coarsest)?;
+            let (level, pin) = (
+                self.sweep_field.as_ref()?.level(0),
+                Pinhole::at_level(&self.rect, level),
+            );
             if pass == Pass::Full {
                 seeds.extend(
                     bank.search(level, &pin)
@@ -1686,30 +1686,19 @@ impl Solver {
         )
     }
 
-    /// When the coarsest level of the full-image field is wider than `SWEEP_MAX_WIDTH` pixels,
-    /// OR-pool its active pixels 2×2 (repeatedly) into `sweep_field` and return the pyramid level
-    /// that corresponds to; None: the sweep runs on the coarsest level itself. The sweep's
-    /// tolerance to a template's misplacement is a few field pixels, so it must see the object at
-    /// about the same size in pixels whatever the sensor (at 1280×720 the coarsest level, 320 px
-    /// wide, left the drill and the box unfound where at 640×360 they were found).
+    /// Build `sweep_field` from the full-image `mask` pooled (see
+    /// [`crate::templates::pool_above_background`]) at the coarsest pyramid level, or coarser while
+    /// that is wider than `SWEEP_MAX_WIDTH` pixels, and return the level (None: not built). The
+    /// sweep's tolerance to a template's misplacement is a few field pixels, so it must see the
+    /// object at about the same size in pixels whatever the sensor (at 1280×720 the coarsest
+    /// level, 320 px wide, left the drill and the box unfound where at 640×360 they were found).
     fn sweep_level(&mut self, coarsest: u32) -> Option<u32> {
-        let src = self.field.level(coarsest);
-        let (mut w, mut h) = (src.roi.width as usize, src.roi.height as usize);
-        if w <= SWEEP_MAX_WIDTH {
-            return None;
-        }
-        let mut mask: Vec<u8> = src.value.iter().map(|&f| u8::from(f == 0.0)).collect();
+        let (width, height) = (self.rect.width as usize, self.rect.height as usize);
         let mut level = coarsest;
-        while w > SWEEP_MAX_WIDTH {
-            let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
-            let mut pooled = vec![0u8; w2 * h2];
-            for y in 0..h {
-                for x in 0..w {
-                    pooled[(y / 2) * w2 + x / 2] |= mask[y * w + x];
-                }
-            }
-            (mask, w, h, level) = (pooled, w2, h2, level + 1);
+        while width.div_ceil(1 << level) > SWEEP_MAX_WIDTH {
+            level += 1;
         }
+        let (mask, w, h) = pool_above_background(&self.mask, width, height, level);
         let params = FieldParams {
             levels: 1,
             ..self.config.field
