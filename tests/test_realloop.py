@@ -220,7 +220,9 @@ def test_ur_dry_run_never_opens_the_control_interface(rec_path, rec):
 FRANKY_PLANNER_FAILED = "Motion planner failed"
 
 
-def test_franka_sim_connect_stream_and_clean_shutdown(rec_path, rec):
+@pytest.fixture
+def franka_sim():
+    """A franky-sim server (one MuJoCo FR3 on loopback) and evservo's FrankaArm class."""
     pytest.importorskip("franky", reason="needs franky-control")
     pytest.importorskip("franky_sim", reason="needs franky-sim (requirements-hw.txt)")
     from evservo.robots.franka import FrankaArm
@@ -228,26 +230,36 @@ def test_franka_sim_connect_stream_and_clean_shutdown(rec_path, rec):
 
     sim = Sim()
     try:
-        for attempt in (1, 2):
-            source, tracker, cfg = parts(rec_path, rec, duration_s=0.5)
-            with FrankaArm(sim.host, realtime="ignore", limits=GENTLE) as arm:
-                p0 = arm.T_w_e()[:3, 3]
-                r = run_real_loop(arm, source, tracker, cfg)
-                assert arm.gate.history[-1].kind == "halt"
-                if attempt == 1 and r.error is not None and FRANKY_PLANNER_FAILED in r.error:
-                    assert not r.completed and r.ended == f"error: {r.error}"
-                    continue
-                assert r.completed and r.error is None, r.ended
-                assert sum(h.kind == "command" for h in arm.gate.history) > 20
-                moved = np.linalg.norm(arm.T_w_e()[:3, 3] - p0)
-            break
-        assert 1e-4 < moved < 0.05
-        with FrankaArm(sim.host, realtime="ignore") as again:  # released cleanly, and at rest
-            a = again.T_w_e()[:3, 3]
-            time.sleep(0.2)
-            assert np.linalg.norm(again.T_w_e()[:3, 3] - a) < 1e-3
+        yield sim.host, FrankaArm
     finally:
         sim.close()
+
+
+def assert_connects_again_at_rest(FrankaArm, host: str) -> None:
+    """The last arm released the robot (franky-sim serves one client at a time) and left it at rest."""
+    with FrankaArm(host, realtime="ignore") as again:
+        a = again.T_w_e()[:3, 3]
+        time.sleep(0.2)
+        assert np.linalg.norm(again.T_w_e()[:3, 3] - a) < 1e-3
+
+
+def test_franka_sim_connect_stream_and_clean_shutdown(rec_path, rec, franka_sim):
+    host, FrankaArm = franka_sim
+    for attempt in (1, 2):
+        source, tracker, cfg = parts(rec_path, rec, duration_s=0.5)
+        with FrankaArm(host, realtime="ignore", limits=GENTLE) as arm:
+            p0 = arm.T_w_e()[:3, 3]
+            r = run_real_loop(arm, source, tracker, cfg)
+            assert arm.gate.history[-1].kind == "halt"
+            if attempt == 1 and r.error is not None and FRANKY_PLANNER_FAILED in r.error:
+                assert not r.completed and r.ended == f"error: {r.error}"
+                continue
+            assert r.completed and r.error is None, r.ended
+            assert sum(h.kind == "command" for h in arm.gate.history) > 20
+            moved = np.linalg.norm(arm.T_w_e()[:3, 3] - p0)
+        break
+    assert 1e-4 < moved < 0.05
+    assert_connects_again_at_rest(FrankaArm, host)
 
 
 class RefusesOneMotion:
@@ -268,35 +280,24 @@ class RefusesOneMotion:
         return self.robot.move(motion, asynchronous=asynchronous)
 
 
-def test_franka_sim_a_refused_motion_stops_the_loop_and_the_robot_can_be_connected_again(rec_path, rec):
-    pytest.importorskip("franky", reason="needs franky-control")
-    pytest.importorskip("franky_sim", reason="needs franky-sim (requirements-hw.txt)")
-    from evservo.robots.franka import FrankaArm
-    from franka_sim import Sim
-
+def test_franka_sim_a_refused_motion_stops_the_loop_and_the_robot_can_be_connected_again(rec_path, rec, franka_sim):
+    host, FrankaArm = franka_sim
     robots = []
 
     def connect(*args, **kwargs) -> RefusesOneMotion:
         robots.append(RefusesOneMotion(*args, **kwargs))
         return robots[-1]
 
-    sim = Sim()
-    try:
-        source, tracker, cfg = parts(rec_path, rec, duration_s=0.5)
-        with FrankaArm(sim.host, realtime="ignore", limits=GENTLE, robot_factory=connect) as arm:
-            r = run_real_loop(arm, source, tracker, cfg)
-            assert r.ended == "error: Motion planner failed with error code -110" and not r.completed
-            assert arm.gate.history[-1].kind == "halt"
-        # Nothing that outlived the loop (a log record, a traceback) may still hold the first connection:
-        # franky-sim serves one client at a time, and connecting again would wait for it forever.
-        first = weakref.ref(robots.pop())
-        assert first() is None, "the refused motion's connection outlived the arm"
-        with FrankaArm(sim.host, realtime="ignore") as again:
-            a = again.T_w_e()[:3, 3]
-            time.sleep(0.2)
-            assert np.linalg.norm(again.T_w_e()[:3, 3] - a) < 1e-3
-    finally:
-        sim.close()
+    source, tracker, cfg = parts(rec_path, rec, duration_s=0.5)
+    with FrankaArm(host, realtime="ignore", limits=GENTLE, robot_factory=connect) as arm:
+        r = run_real_loop(arm, source, tracker, cfg)
+        assert r.ended == "error: Motion planner failed with error code -110" and not r.completed
+        assert arm.gate.history[-1].kind == "halt"
+    # Nothing that outlived the loop (a log record, a traceback) may still hold the first connection:
+    # connecting again would wait for it forever.
+    first = weakref.ref(robots.pop())
+    assert first() is None, "the refused motion's connection outlived the arm"
+    assert_connects_again_at_rest(FrankaArm, host)
 
 
 # -- (d) injected faults: a pose jump, a stale pose, a lost object ----------------------------------
