@@ -805,13 +805,9 @@ mod tests {
             }
             batch
         };
-        // A whole search window of it (see `Solver::search_window_full`).
-        for k in 1..=11 {
-            core.ingest(&outline(k * 1000)).unwrap();
-        }
+        core.ingest(&outline(1000)).unwrap();
         assert!(core.step().lost, "trusted after a single pass");
         let passes = core.stats().reacquire_passes;
-        assert_eq!(passes, 1);
         assert!(core.step().lost);
         assert_eq!(
             core.stats().reacquire_passes,
@@ -820,51 +816,12 @@ mod tests {
         );
         // Found every pass (a clean outline), but the cube's turns explain its edges alike: which
         // of its attitudes it is in cannot be told, so none is trusted.
-        for k in 12..16 {
+        for k in 2..6 {
             core.ingest(&outline(k * 1000)).unwrap();
             let e = core.step();
             assert!(e.lost, "pass {k}: {e:?}");
         }
         assert_eq!(core.stats().reacquire_passes, passes + 4);
-    }
-
-    #[test]
-    fn a_search_waits_for_a_whole_window_of_events_from_the_start_and_after_a_gap() {
-        use crate::event::EventBatch;
-        let cam = Camera::imx636().rectified();
-        let (_, mut core) = searching_cube(&cam);
-        let window = core.config().search_fresh_us;
-        // A few events per millisecond: what they are does not matter, only when a pass runs.
-        let batch = |t: i64| {
-            let mut b = EventBatch::default();
-            for k in 0..50u16 {
-                b.push(100 + 7 * k, 200 + (k % 5), 1, t);
-            }
-            b
-        };
-        let passes_after = |core: &mut TrackerCore, from_us: i64, to_us: i64| {
-            let mut seen = Vec::new();
-            for t in (from_us..=to_us).step_by(1000) {
-                core.ingest(&batch(t)).unwrap();
-                let seq = core.latest().seq;
-                let e = core.step();
-                assert!(e.lost && e.seq > seq, "every step publishes, lost: {e:?}");
-                seen.push(core.stats().reacquire_passes);
-            }
-            seen
-        };
-        // The stream begins at 5 ms: no pass on less than a window of it, one on the first
-        // step that has one, then one per newer millisecond.
-        let start = 5_000;
-        let seen = passes_after(&mut core, start, start + window + 2000);
-        let first = seen.iter().position(|&n| n > 0).unwrap();
-        assert_eq!(first as i64 * 1000, window, "{seen:?}");
-        assert_eq!(seen.last(), Some(&3), "{seen:?}");
-        // The events stop for 30 ms (a dropout) and resume: again a whole window first.
-        let resume = start + window + 2000 + 30_000;
-        let seen = passes_after(&mut core, resume, resume + window + 1000);
-        let first = seen.iter().position(|&n| n > 3).unwrap();
-        assert_eq!(first as i64 * 1000, window, "{seen:?}");
     }
 
     #[test]

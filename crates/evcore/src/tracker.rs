@@ -566,9 +566,6 @@ pub struct TrackerOutput {
     /// Time (µs) of the first event after the last gap of at least [`EVENT_GAP_US`] in the
     /// stream; `i64::MIN` if none.
     resumed_at_us: AtomicI64,
-    /// Time (µs) of the first event of the time line (since the tracker was made or its events
-    /// reset); `i64::MIN` before it.
-    began_at_us: AtomicI64,
     /// The stream time (µs) the producer has vouched for through [`Ingest::advance_time`]: no event
     /// was missed up to it; `i64::MIN` if never.
     stream_us: AtomicI64,
@@ -601,7 +598,6 @@ impl TrackerOutput {
             latest: EstimateCell::new(initial),
             newest: NewestBatch::new(),
             resumed_at_us: AtomicI64::new(i64::MIN),
-            began_at_us: AtomicI64::new(i64::MIN),
             stream_us: AtomicI64::new(i64::MIN),
             batches: AtomicU64::new(0),
             offered: AtomicU64::new(0),
@@ -786,12 +782,11 @@ impl Ingest {
             return Ok(());
         }
         let (first_t, last_t) = (events.t_at(0), events.t_at(n - 1));
-        match self.last_t_us {
-            None => self.out.began_at_us.store(first_t, Ordering::Release),
-            Some(prev) if first_t - prev >= EVENT_GAP_US => {
-                self.out.resumed_at_us.store(first_t, Ordering::Release);
-            }
-            Some(_) => {}
+        if self
+            .last_t_us
+            .is_some_and(|prev| first_t - prev >= EVENT_GAP_US)
+        {
+            self.out.resumed_at_us.store(first_t, Ordering::Release);
         }
         let validated = Instant::now();
         let keep = if thin {
@@ -880,7 +875,6 @@ impl Ingest {
         }
         self.out.newest.set(i64::MIN, 0);
         self.out.resumed_at_us.store(i64::MIN, Ordering::Release);
-        self.out.began_at_us.store(i64::MIN, Ordering::Release);
         self.out.stream_us.store(i64::MIN, Ordering::Release);
     }
 }
@@ -1178,16 +1172,14 @@ impl Solver {
                 // Without a pose ever trusted or a candidate to confirm there is nothing to
                 // track locally.
                 let tracking = self.had_pose || self.pending.is_some();
-                let full = self.search_window_full(t_us);
-                if !tracking && (!full || self.full_pass.ran_us == Some(t_us)) {
-                    // A window not yet full, or no event since the last pass: the same search
-                    // would find the same (or less), and a candidate is only confirmed by a pass
-                    // over newer events.
+                if !tracking && self.full_pass.ran_us == Some(t_us) {
+                    // No event since the last pass: the same search would find the same, and a
+                    // candidate is only confirmed by a pass over newer events.
                     self.last.seq += 1;
                     self.publish();
                     return self.last;
                 }
-                if let Some(pass) = full.then(|| self.pass_due(t_us, tracking)).flatten() {
+                if let Some(pass) = self.pass_due(t_us, tracking) {
                     return self.reacquire(&bank, pass);
                 }
             }
@@ -1601,19 +1593,6 @@ impl Solver {
             explain,
         };
         evidence(self.field.level(0), &pin, &rig, points, &query)
-    }
-
-    /// Whether the stream covers a whole search window (`search_fresh_us`) before `t_us` since it
-    /// began or last resumed from a gap. A global pass sees the pixels that fired in that window;
-    /// over a part of it the object shows only the edges that crossed a pixel so far. The threaded
-    /// tracker ran its first pass on the first millisecond it was handed (120 fired pixels of the
-    /// drill, nothing found) and that pass took 60–230 ms of wall time, most of a 300 ms recording
-    /// (`test_acquisition::test_servo_from_a_search…`, never locked in 1 run of 6 at load 1–2, 6 of
-    /// 6 at load 10). Defined by sensor time, the window is the same whenever the events arrive.
-    fn search_window_full(&self, t_us: i64) -> bool {
-        let began = self.out.began_at_us.load(Ordering::Acquire);
-        let resumed = self.out.resumed_at_us.load(Ordering::Acquire);
-        t_us.saturating_sub(self.config.search_fresh_us) >= began.max(resumed)
     }
 
     /// Which global pass, if any, is due at event time `t_us` while searching (`tracking`: there
