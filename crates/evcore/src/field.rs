@@ -745,13 +745,10 @@ fn windowed_field<const B8: usize, const B16: usize, const WIDE: bool, const VBM
     let top = usize::from(cap) * usize::from(cap);
     lut.clear();
     lut.extend((0..=top).map(|d2| rounded_distance((d2 as f32).sqrt(), tau)));
-    let planes;
+    let planes = byte_planes::<VBMI>(lut);
     let table = Lut {
         f: lut,
-        planes: {
-            planes = byte_planes::<VBMI>(lut);
-            planes.as_ref()
-        },
+        planes: planes.as_ref(),
     };
     if window <= MAX_BYTE_WINDOW_PX {
         row_pass::<u8, B8, WIDE>(col, w, window, cap, out, row8, &table);
