@@ -2976,7 +2976,7 @@ mod tests {
         // Issue 12: wrong beyond 30 mm at Z = 0.6 m; lost within 50 ms of turning wrong, never
         // wrong and trusted for more than 100 ms. The pose stays where it was held (the field
         // refills from fresh events only, see `AFTER_GAP_US`), on the edges the set-off left
-        // there: before the deserted-model test it was flagged 19–41 ms after turning wrong, as
+        // there: before the deserted-model test it was flagged 13–41 ms after turning wrong, as
         // those edges aged, and at 4 mm/ms trusted on them again 96 ms later, to the end.
         for speed_m_s in [2.0, 4.0, 8.0] {
             let run = set_off_after_a_held_dropout(speed_m_s, 450);
