@@ -265,7 +265,7 @@ pub const EXPLAINED_ENOUGH: f32 = 0.5;
 /// Cell side (pixels) of the occupancy grid the projected model is drawn into for `explained`.
 pub const EXPLAIN_CELL_PX: u32 = 4;
 
-fn explained_fraction(
+pub(crate) fn explained_fraction(
     level: &FieldLevel,
     pin: &Pinhole,
     pose: &Rigid32,

@@ -307,16 +307,13 @@ impl TemplateBank {
     /// views, rolls and the densest positions at that depth's scale.
     pub fn search(&self, coarse: &FieldLevel, pin: &Pinhole) -> Vec<(Pose, usize, f32)> {
         let p = &self.params;
-        let rolls: Vec<UnitQuaternion<f64>> = p
-            .rolls()
-            .into_iter()
-            .map(|a| UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a))
-            .collect();
+        let oriented = self.oriented();
         let active = ActiveCounts::new(coarse);
         let keep = p.candidates;
         let mut out = Vec::new();
         for z in p.depths() {
-            let mut best: Vec<(f32, Pose, usize)> = Vec::new();
+            // (mean field value, translation, index into `oriented`), best first.
+            let mut best: Vec<(f32, Vector3<f64>, usize)> = Vec::new();
             let r_px = (f64::from(pin.fx) * self.radius_m / z).max(1.0);
             for (u, v) in active.densest(r_px, p.positions_per_depth) {
                 // The events' mass near the window (two mean-shift rounds): each template is put
@@ -326,40 +323,81 @@ impl TemplateBank {
                 for _ in 0..2 {
                     (mu, mv) = active.mean_near(mu, mv, r_px).unwrap_or((mu, mv));
                 }
-                for (vi, view) in self.views.iter().enumerate() {
-                    for roll in &rolls {
-                        let r = roll * view.r_c_o;
-                        let m = r * view.coarse_mean_o;
-                        let (cu, cv) = (
-                            mu - f64::from(pin.fx) * m.x / z,
-                            mv - f64::from(pin.fy) * m.y / z,
-                        );
-                        let ray = Vector3::new(
-                            (cu - f64::from(pin.cx)) / f64::from(pin.fx),
-                            (cv - f64::from(pin.cy)) / f64::from(pin.fy),
-                            1.0,
-                        );
-                        let t = ray * z - r * self.centre_o;
-                        let pose = Pose::from_parts(Translation3::from(t), r);
-                        let rig = Rigid32::from_pose(&pose);
-                        let worst = if best.len() < keep {
-                            f32::INFINITY
-                        } else {
-                            best[keep - 1].0
-                        };
-                        let Some(cost) = chamfer(coarse, pin, &rig, &view.coarse, worst) else {
-                            continue;
-                        };
-                        let at = best.partition_point(|b| b.0 <= cost);
-                        best.insert(at, (cost, pose, vi));
-                        best.truncate(keep);
-                    }
+                for (oi, o) in oriented.iter().enumerate() {
+                    let (cu, cv) = (
+                        mu - f64::from(pin.fx) * o.mass.x / z,
+                        mv - f64::from(pin.fy) * o.mass.y / z,
+                    );
+                    let ray = Vector3::new(
+                        (cu - f64::from(pin.cx)) / f64::from(pin.fx),
+                        (cv - f64::from(pin.cy)) / f64::from(pin.fy),
+                        1.0,
+                    );
+                    let t = ray * z - o.centre;
+                    let rig = Rigid32 {
+                        t: [t.x as f32, t.y as f32, t.z as f32],
+                        ..o.rig
+                    };
+                    let worst = if best.len() < keep {
+                        f32::INFINITY
+                    } else {
+                        best[keep - 1].0
+                    };
+                    let points = &self.views[o.view].coarse;
+                    let Some(cost) = chamfer(coarse, pin, &rig, points, worst) else {
+                        continue;
+                    };
+                    let at = best.partition_point(|b| b.0 <= cost);
+                    best.insert(at, (cost, t, oi));
+                    best.truncate(keep);
                 }
             }
-            out.extend(best.into_iter().map(|(c, pose, vi)| (pose, vi, c)));
+            out.extend(best.into_iter().map(|(c, t, oi)| {
+                let o = &oriented[oi];
+                (Pose::from_parts(Translation3::from(t), o.r), o.view, c)
+            }));
         }
         out
     }
+
+    /// Every view turned by every roll, in the sweep's order (views, then rolls): the rotation
+    /// and what it makes of the template's edge mass and the model centre. Formed once per sweep
+    /// rather than once per depth and position (16 times over by default).
+    fn oriented(&self) -> Vec<Oriented> {
+        let rolls: Vec<UnitQuaternion<f64>> = self
+            .params
+            .rolls()
+            .into_iter()
+            .map(|a| UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a))
+            .collect();
+        let mut out = Vec::with_capacity(self.views.len() * rolls.len());
+        for (view, v) in self.views.iter().enumerate() {
+            for roll in &rolls {
+                let r = roll * v.r_c_o;
+                out.push(Oriented {
+                    r,
+                    rig: Rigid32::from_pose(&Pose::from_parts(Translation3::identity(), r)),
+                    mass: r * v.coarse_mean_o,
+                    centre: r * self.centre_o,
+                    view,
+                });
+            }
+        }
+        out
+    }
+}
+
+/// One view of the bank at one in-plane roll, as the sweep places it (see
+/// [`TemplateBank::search`]).
+struct Oriented {
+    r: UnitQuaternion<f64>,
+    /// `r` as the f32 warp (its translation set per placement).
+    rig: Rigid32,
+    /// The template's edge mass relative to the model centre, and the model centre itself (object
+    /// frame), both turned by `r` (metres).
+    mass: Vector3<f64>,
+    centre: Vector3<f64>,
+    view: usize,
 }
 
 /// How far (in the object's image radii) [`TemplateBank::search_near`] shifts a pose across the
@@ -402,9 +440,27 @@ fn chamfer(
     points: &[[f32; 3]],
     give_up: f32,
 ) -> Option<f32> {
-    let far = map.max_value();
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        return unsafe { chamfer_avx2(map, pin, rig, points, give_up) };
+    }
     let budget = give_up * points.len() as f32;
-    let mut sum = 0.0f32;
+    let sum = chamfer_sum(map, pin, rig, points, 0.0, budget)?;
+    Some(sum / points.len().max(1) as f32)
+}
+
+/// `sum` plus the field values at the projected `points` (the level's far value for a point the
+/// projection refuses), added one by one in order; None once it reaches `budget`.
+fn chamfer_sum(
+    map: &FieldLevel,
+    pin: &Pinhole,
+    rig: &Rigid32,
+    points: &[[f32; 3]],
+    mut sum: f32,
+    budget: f32,
+) -> Option<f32> {
+    let far = map.max_value();
     for &x in points {
         sum += pin
             .project(rig.apply(x))
@@ -413,6 +469,46 @@ fn chamfer(
             return None;
         }
     }
+    Some(sum)
+}
+
+/// [`chamfer`] eight points at a time: their warp and projection
+/// ([`crate::solve::cost::warp_project8_avx2`]) and, when all eight cells lie inside the level,
+/// their bilinear values ([`FieldLevel::sample_slope8_avx2`]) in vectors, each lane formed by the
+/// same operations as the one-point path and added to the sum in the same order, so the same
+/// score. The sum only grows (field values are ≥ 0), so giving up after a chunk instead of after
+/// a point refuses the same placements. The sweep scores ≈ 70 000 placements per pass.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn chamfer_avx2(
+    map: &FieldLevel,
+    pin: &Pinhole,
+    rig: &Rigid32,
+    points: &[[f32; 3]],
+    give_up: f32,
+) -> Option<f32> {
+    use std::arch::x86_64::_mm256_storeu_ps;
+    let budget = give_up * points.len() as f32;
+    let mut sum = 0.0f32;
+    let mut chunks = points.chunks_exact(8);
+    for chunk in &mut chunks {
+        // SAFETY: the CPU has AVX2 and the chunk holds eight points.
+        let projected = unsafe { crate::solve::cost::warp_project8_avx2(pin, rig, chunk) };
+        let Some([value, _, _]) = projected.and_then(|p| map.sample_slope8_avx2(p.u, p.v)) else {
+            sum = chamfer_sum(map, pin, rig, chunk, sum, budget)?;
+            continue;
+        };
+        let mut f = [0.0f32; 8];
+        // SAFETY: an 8-lane store into an 8-lane array.
+        unsafe { _mm256_storeu_ps(f.as_mut_ptr(), value) };
+        for v in f {
+            sum += v;
+        }
+        if sum >= budget {
+            return None;
+        }
+    }
+    let sum = chamfer_sum(map, pin, rig, chunks.remainder(), sum, budget)?;
     Some(sum / points.len().max(1) as f32)
 }
 
@@ -557,6 +653,63 @@ mod tests {
     use crate::se3::distance;
     use crate::solve::lm::{lm_pyramid, LmParams};
     use crate::tracker::{TrackerConfig, TrackerCore};
+
+    #[test]
+    fn the_eight_point_chamfer_scores_and_gives_up_as_the_one_point_path() {
+        let cam = Camera::imx636().rectified();
+        let mesh = test_cube(0.15, Shading::Constant(0.8));
+        let r = UnitQuaternion::from_scaled_axis(Vector3::new(0.4, 0.3, 0.1));
+        let truth = Pose::from_parts(Translation3::new(0.05, -0.02, 0.7), r);
+        let field = edge_field(&mesh, &cam, &truth, &PointSetParams::default());
+        // Not a multiple of eight, so the last points take the one-point path.
+        let few = PointSetParams {
+            max_points: 61,
+            ..PointSetParams::default()
+        };
+        let points = extract_point_set(&mesh, &cam, &truth, &few)
+            .unwrap()
+            .points_o;
+        assert_eq!(points.len() % 8, 5, "{} points", points.len());
+        let (level, pin) = (field.level(2), Pinhole::at_level(&cam, 2));
+        let n = points.len() as f32;
+        let (w, h) = (level.roi.width as f32 - 2.0, level.roi.height as f32 - 2.0);
+        let mut rng = crate::rng::Rng::new(7);
+        let mut uniform = |a: f64, b: f64| a + (b - a) * rng.uniform();
+        let (mut whole, mut cut, mut given_up) = (0, 0, 0);
+        for _ in 0..3000 {
+            // Over the image, across its borders and behind the camera's minimum depth.
+            let t = Translation3::new(uniform(-0.5, 0.5), uniform(-0.3, 0.3), uniform(-0.05, 1.5));
+            let axis = Vector3::new(uniform(-3.0, 3.0), uniform(-3.0, 3.0), uniform(-3.0, 3.0));
+            let rig =
+                Rigid32::from_pose(&Pose::from_parts(t, UnitQuaternion::from_scaled_axis(axis)));
+            let sum = chamfer_sum(level, &pin, &rig, &points, 0.0, f32::INFINITY).unwrap();
+            let score = chamfer(level, &pin, &rig, &points, f32::INFINITY).unwrap();
+            assert_eq!(score.to_bits(), (sum / n).to_bits());
+            let inside = points.iter().all(|&x| {
+                pin.project(rig.apply(x))
+                    .is_some_and(|(u, v)| u >= 1.0 && v >= 1.0 && u < w && v < h)
+            });
+            if inside {
+                whole += 1;
+            } else {
+                cut += 1;
+            }
+            let give_up = score * uniform(0.8, 1.2) as f32;
+            let kept = chamfer(level, &pin, &rig, &points, give_up);
+            assert_eq!(
+                kept.is_none(),
+                sum >= give_up * n,
+                "{score} against {give_up}"
+            );
+            given_up += usize::from(kept.is_none());
+        }
+        // Both paths and both outcomes were exercised.
+        assert!(
+            whole > 100 && cut > 100,
+            "{whole} inside, {cut} across a border"
+        );
+        assert!(given_up > 500 && given_up < 2500, "{given_up} given up");
+    }
 
     #[test]
     fn the_global_search_finds_a_cube_anywhere_in_the_image() {

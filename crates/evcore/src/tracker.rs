@@ -24,7 +24,7 @@
 //! level, which is most of why they are cheap.
 
 use crate::camera::{Camera, UndistortLut};
-use crate::confidence::{evidence, Evidence, Query};
+use crate::confidence::{evidence, explained_fraction, Evidence, Query};
 use crate::error::{ensure, Error, Result};
 use crate::event::{validate_events, EventRecords};
 use crate::field::{DistanceField, FieldParams};
@@ -1541,7 +1541,7 @@ impl Solver {
         let speed = self.motion.update(t_us, pose, &self.pins[0], &self.points);
         self.speed_px_s = speed;
         let fresh = max_age_us(speed).map(|age| t_us - age);
-        self.evidence = self.evidence_of(pose, &self.points, fresh, false);
+        self.evidence = self.evidence_of(pose, &self.points, fresh, None);
         let activity = self.activity_at(t_us, pose);
         self.evidence.active = activity.on_model;
         self.evidence.active_around = activity.around;
@@ -1581,13 +1581,16 @@ impl Solver {
     /// The evidence for `pose` with `points` on the last built full-resolution field, its chance
     /// level taken over the search region around the projected model (the same region for LM and
     /// search steps, so both score alike); `fresh_since`: supported points also need an event in
-    /// their block since then (µs).
+    /// their block since then (µs). `explain_above`: also measure the share of the events around
+    /// the pose that it explains (global search), when its support exceeds chance by at least
+    /// that much; else `explained` stays 0. Scanning the region for it was the dearest part of
+    /// scoring a candidate, and the acquisition score is at most that excess.
     fn evidence_of(
         &self,
         pose: &Pose,
         points: &[[f32; 3]],
         fresh_since: Option<i64>,
-        explain: bool,
+        explain_above: Option<f32>,
     ) -> Evidence {
         let rig = Rigid32::from_pose(pose);
         let pin = self.pins[0];
@@ -1608,9 +1611,26 @@ impl Solver {
             region,
             image: (self.rect.width, self.rect.height),
             fresh_since: fresh_since.map(|t| (&*self.recency, t)),
-            explain,
+            explain: false,
         };
-        evidence(self.field.level(0), &pin, &rig, points, &query)
+        let level = self.field.level(0);
+        let mut e = evidence(level, &pin, &rig, points, &query);
+        if explain_above.is_some_and(|floor| e.support - e.chance >= floor) {
+            e.explained = explained_fraction(level, &pin, &rig, points, region);
+        }
+        e
+    }
+
+    /// The acquisition score below which a global-search candidate decides nothing: it is not
+    /// refined again ([`RESCORE_ABOVE`]), not turned ([`TURN_ABOVE`]), not taken
+    /// (`reacquire_above`), and as a rival it cannot deny a candidate that could be taken its
+    /// margin ([`ACQUISITION_MARGIN`]). Its `explained` share is not measured (see
+    /// `evidence_of`); on the recordings of `tests/test_acquisition.py` (drill, box, 5 windows
+    /// each) 40–67 % of the sweep's candidates have support − chance below it.
+    fn score_floor(&self) -> f32 {
+        TURN_ABOVE
+            .min(RESCORE_ABOVE)
+            .min(self.config.reacquire_above / ACQUISITION_MARGIN)
     }
 
     /// Which global pass, if any, is due at event time `t_us` while searching (`tracking`: there
@@ -1755,7 +1775,7 @@ impl Solver {
         let pivot = centroid(points);
         let pose = lm_pyramid(&pyramid, seed, points, &pivot, &self.config.lm).pose;
         check_pose(&pose).ok()?;
-        let evidence = self.evidence_of(&pose, points, None, true);
+        let evidence = self.evidence_of(&pose, points, None, Some(self.score_floor()));
         let first = Candidate {
             seed,
             view,
@@ -1778,7 +1798,7 @@ impl Solver {
         if check_pose(&pose).is_err() {
             return Some(first);
         }
-        let evidence = self.evidence_of(&pose, points, None, true);
+        let evidence = self.evidence_of(&pose, points, None, Some(self.score_floor()));
         Some(Candidate {
             seed,
             view: Some(near),
@@ -2026,7 +2046,8 @@ impl TrackerCore {
 
     /// Diagnostics: one global search on the current events without changing the tracker's state
     /// (beyond its field), `extra` poses refined and scored alongside the sweep's candidates.
-    /// Empty without a template bank.
+    /// Empty without a template bank. A candidate whose support exceeds chance by less than the
+    /// search's score floor reads `explained` 0 (not measured: its score cannot matter).
     pub fn global_candidates(&mut self, extra: &[Pose]) -> Vec<Candidate> {
         let s = &mut self.solver;
         let Some(bank) = s.bank.clone() else {

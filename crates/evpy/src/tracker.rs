@@ -466,7 +466,8 @@ impl PyTracker {
     /// Diagnostics (synchronous use): one global search on the current events, as the tracker
     /// runs it while lost, without changing its state. `extra` (N, 4, 4) poses are refined and
     /// scored alongside. A list of dicts: `seed` and `T_c_o` (before / after LM), `view` (bank
-    /// view or None), `chamfer`, `confidence`, `acquisition` and the evidence parts.
+    /// view or None), `chamfer`, `confidence`, `acquisition` and the evidence parts (`explained`
+    /// is 0 where support − chance is too low for the candidate's score to matter).
     #[pyo3(signature = (extra=None))]
     fn _global_candidates<'py>(
         &self,
