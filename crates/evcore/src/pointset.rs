@@ -4,7 +4,8 @@
 //!
 //! An edge pixel is a foreground pixel with a 4-neighbour that is background or farther by more
 //! than `depth_jump_m` (silhouette or occlusion boundary), whose normal differs from a neighbour's
-//! by more than `crease_deg` (crease), or where the rendered intensity gradient exceeds
+//! by more than `crease_deg` with a rendered brightness step of at least `crease_contrast` across
+//! (crease: one whose faces render alike fires no events), or where the rendered intensity gradient exceeds
 //! `texture_grad` (print and albedo edges). Silhouette and depth jumps take the nearer pixel, so
 //! every point lies at the depth of the surface that is actually seen; its point is placed half a
 //! pixel outwards, on the outline's expected place rather than the pixel's centre
@@ -39,6 +40,9 @@ pub struct PointSetParams {
     /// Angle (degrees) between neighbouring normals that counts as a crease. Above the facet
     /// angle of tessellated curved surfaces, so that spheres and cylinders give no false creases.
     pub crease_deg: f32,
+    /// Step in rendered log intensity (natural log) a crease must show to count: an event camera
+    /// sees only brightness steps, and a crease both of whose faces render alike fires nothing.
+    pub crease_contrast: f32,
     /// Rendered-intensity gradient magnitude (intensity units per pixel, central differences)
     /// that counts as a texture edge.
     pub texture_grad: f32,
@@ -55,6 +59,9 @@ impl Default for PointSetParams {
             max_points: 1000,
             depth_jump_m: 0.01,
             crease_deg: 30.0,
+            // Half the sensor's typical contrast threshold (0.2, see `sim::params`): a step that
+            // small fires hardly ever; the plate's unlit rim creases render below 0.1.
+            crease_contrast: 0.1,
             texture_grad: 0.08,
             balance: 0.0,
             seed: 0,
@@ -113,7 +120,9 @@ fn edge_pixels(r: &Rendered, params: &PointSetParams) -> Vec<(u32, u32, EdgeKind
                 }
                 smooth += 1;
                 let m = r.normal_c[q];
-                if n[0] * m[0] + n[1] * m[1] + n[2] * m[2] < cos_crease {
+                if n[0] * m[0] + n[1] * m[1] + n[2] * m[2] < cos_crease
+                    && log_step(r.intensity[i], r.intensity[q]) >= params.crease_contrast
+                {
                     kind = Some(EdgeKind::Crease);
                 }
             }
@@ -130,6 +139,13 @@ fn edge_pixels(r: &Rendered, params: &PointSetParams) -> Vec<(u32, u32, EdgeKind
         }
     }
     edges
+}
+
+/// Step between two rendered intensities in log units, as the event camera's pixels compare them
+/// (`LOG_EPS` keeps black finite).
+fn log_step(a: f32, b: f32) -> f32 {
+    const LOG_EPS: f32 = 1e-3;
+    ((a + LOG_EPS) / (b + LOG_EPS)).ln().abs()
 }
 
 /// Where the outline through silhouette pixel `i` of render `r` lies, relative to the pixel's
@@ -475,6 +491,15 @@ pub fn extract_point_set(
         params.crease_deg.is_finite() && params.crease_deg > 0.0 && params.crease_deg < 180.0,
         || format!("crease_deg must be in (0, 180), got {}", params.crease_deg),
     )?;
+    ensure(
+        params.crease_contrast.is_finite() && params.crease_contrast >= 0.0,
+        || {
+            format!(
+                "crease_contrast must be finite and non-negative, got {}",
+                params.crease_contrast
+            )
+        },
+    )?;
     ensure((0.0..=1.0).contains(&params.balance), || {
         format!("balance must be in [0, 1], got {}", params.balance)
     })?;
@@ -667,6 +692,32 @@ mod tests {
                 });
             assert!(hit, "({u}, {v}) is no {kind:?} pixel's point");
         }
+    }
+
+    /// A cube seen along its body diagonal under the headlight: its three faces render alike, so
+    /// the creases between them fire no events and must give no points; the outline still does.
+    #[test]
+    fn creases_whose_faces_render_alike_give_no_points() {
+        let cam = cam();
+        let mesh = test_cube(0.2, Shading::Constant(0.5));
+        let diagonal = UnitQuaternion::rotation_between(
+            &Vector3::new(1.0, 1.0, 1.0),
+            &Vector3::new(0.0, 0.0, -1.0),
+        )
+        .unwrap();
+        let t_c_o = Isometry3::from_parts(Translation3::new(0.0, 0.0, 0.7), diagonal);
+        let set = extract_point_set(&mesh, &cam, &t_c_o, &PointSetParams::default()).unwrap();
+        let count = |k: EdgeKind| set.kinds.iter().filter(|&&q| q == k).count();
+        assert_eq!(count(EdgeKind::Crease), 0);
+        assert!(
+            count(EdgeKind::Silhouette) > 500,
+            "{}",
+            count(EdgeKind::Silhouette)
+        );
+        // Turned off the diagonal the faces differ in brightness and the creases count again.
+        let turned = t_c_o * UnitQuaternion::from_euler_angles(0.0, 0.5, 0.0);
+        let set = extract_point_set(&mesh, &cam, &turned, &PointSetParams::default()).unwrap();
+        assert!(set.kinds.contains(&EdgeKind::Crease));
     }
 
     /// Signed distance (pixels, negative inside) of (u, v) from the convex polygon `corners`
