@@ -347,18 +347,8 @@ impl FieldLevel {
         let x = _mm256_sub_ps(u, _mm256_set1_ps(self.roi.x0 as f32));
         let y = _mm256_sub_ps(v, _mm256_set1_ps(self.roi.y0 as f32));
         let (w, h) = (self.roi.width as f32, self.roi.height as f32);
-        let zero = _mm256_setzero_ps();
-        // Ordered comparisons: NaN fails every one, as in `cell`.
-        let inside = _mm256_and_ps(
-            _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_GE_OQ>(x, zero),
-                _mm256_cmp_ps::<_CMP_GE_OQ>(y, zero),
-            ),
-            _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_LT_OQ>(x, _mm256_set1_ps(w - 1.0)),
-                _mm256_cmp_ps::<_CMP_LT_OQ>(y, _mm256_set1_ps(h - 1.0)),
-            ),
-        );
+        // NaN fails, as in `cell`.
+        let inside = lanes_in_box_avx2(x, y, w - 1.0, h - 1.0);
         if _mm256_movemask_ps(inside) != 0xFF {
             return None;
         }
@@ -1029,6 +1019,31 @@ fn lower_envelope(f: &[f64], out: &mut [f32], s: &mut FhScratch) {
         let d = qf - s.v[k] as f64;
         *o = (d * d + s.f[k]) as f32;
     }
+}
+
+/// All-ones in the lanes where 0 ≤ x < w and 0 ≤ y < h, zero elsewhere. The comparisons are
+/// ordered, so a NaN coordinate is outside.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) fn lanes_in_box_avx2(
+    x: std::arch::x86_64::__m256,
+    y: std::arch::x86_64::__m256,
+    w: f32,
+    h: f32,
+) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    let zero = _mm256_setzero_ps();
+    _mm256_and_ps(
+        _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(x, zero),
+            _mm256_cmp_ps::<_CMP_GE_OQ>(y, zero),
+        ),
+        _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_LT_OQ>(x, _mm256_set1_ps(w)),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(y, _mm256_set1_ps(h)),
+        ),
+    )
 }
 
 #[cfg(test)]

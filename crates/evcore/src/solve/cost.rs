@@ -61,6 +61,24 @@ pub trait CostMap {
     ) -> Option<[std::arch::x86_64::__m256; 3]> {
         None
     }
+    /// The search stars of eight points (lanes of `u`, `v`; their offsets `du[k]`, `dv[k]`), for
+    /// callers compiled for AVX2: candidate i's eight values in vector i, each the value
+    /// [`Self::add_star`] would add for that point and candidate. None (the default, and whenever
+    /// a map has no vector path for these stars) sends the caller to the stars one by one.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn stars8_avx2(
+        &self,
+        _u: std::arch::x86_64::__m256,
+        _v: std::arch::x86_64::__m256,
+        _du: &[std::arch::x86_64::__m256; 6],
+        _dv: &[std::arch::x86_64::__m256; 6],
+    ) -> Option<[std::arch::x86_64::__m256; 13]> {
+        None
+    }
 }
 
 /// Points closer to the camera plane than this are treated as unprojectable (metres).
@@ -161,6 +179,103 @@ pub fn image_jacobian(pin: &Pinhole, p: [f32; 3], pivot: [f32; 3]) -> [[f32; 6];
     [row(au), row(av)]
 }
 
+/// Eight points warped by `rig` and projected, lane by lane the same operations in the same
+/// order as [`Rigid32::apply`] and [`Pinhole::project`] (so the same bits): the camera-frame
+/// coordinates and (u, v). None when a point lies in front of the minimum depth, which `project`
+/// refuses.
+///
+/// # Safety
+/// The CPU must have AVX2, and `chunk` must hold eight points.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) unsafe fn warp_project8_avx2(
+    pin: &Pinhole,
+    rig: &Rigid32,
+    chunk: &[[f32; 3]],
+) -> Option<Projected8> {
+    use std::arch::x86_64::*;
+    debug_assert_eq!(chunk.len(), 8);
+    let base = chunk.as_ptr().cast::<f32>();
+    let lanes = _mm256_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21);
+    // SAFETY: the gathers read coordinate c of the eight points, within `chunk`.
+    let coord = |c: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(c), lanes) };
+    let (x, y, z) = (coord(0), coord(1), coord(2));
+    let s = _mm256_set1_ps;
+    // r[3i]·x + r[3i+1]·y + r[3i+2]·z + t[i], added left to right as in `Rigid32::apply`.
+    let row = |i: usize| {
+        let r = &rig.r[3 * i..3 * i + 3];
+        let xy = _mm256_add_ps(_mm256_mul_ps(s(r[0]), x), _mm256_mul_ps(s(r[1]), y));
+        _mm256_add_ps(_mm256_add_ps(xy, _mm256_mul_ps(s(r[2]), z)), s(rig.t[i]))
+    };
+    let p = [row(0), row(1), row(2)];
+    // `Pinhole::project` refuses a depth below the minimum (and takes NaN, which a map refuses).
+    if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(p[2], s(MIN_DEPTH_M))) != 0 {
+        return None;
+    }
+    let iz = _mm256_div_ps(s(1.0), p[2]);
+    let u = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(s(pin.fx), p[0]), iz), s(pin.cx));
+    let v = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(s(pin.fy), p[1]), iz), s(pin.cy));
+    Some(Projected8 { p, u, v })
+}
+
+/// What [`warp_project8_avx2`] gives for eight points: camera-frame coordinates (metres) and image
+/// positions (level pixels), one lane per point.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub(crate) struct Projected8 {
+    pub p: [std::arch::x86_64::__m256; 3],
+    pub u: std::arch::x86_64::__m256,
+    pub v: std::arch::x86_64::__m256,
+}
+
+/// [`image_jacobian`] of eight camera-frame points (lanes of `p`), the same operations in the same
+/// order per lane (the zero entries of ∂u/∂P included, since 0·q is not always +0), so the same
+/// bits.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) unsafe fn image_jacobian8_avx2(
+    pin: &Pinhole,
+    p: &[std::arch::x86_64::__m256; 3],
+    pivot: [f32; 3],
+) -> [[std::arch::x86_64::__m256; 6]; 2] {
+    use std::arch::x86_64::*;
+    let s = _mm256_set1_ps;
+    let (mul, sub) = (_mm256_mul_ps, _mm256_sub_ps);
+    let iz = _mm256_div_ps(s(1.0), p[2]);
+    let zero = _mm256_setzero_ps();
+    let au = [
+        mul(s(pin.fx), iz),
+        zero,
+        mul(mul(mul(s(-pin.fx), p[0]), iz), iz),
+    ];
+    let av = [
+        zero,
+        mul(s(pin.fy), iz),
+        mul(mul(mul(s(-pin.fy), p[1]), iz), iz),
+    ];
+    let q = [
+        sub(p[0], s(pivot[0])),
+        sub(p[1], s(pivot[1])),
+        sub(p[2], s(pivot[2])),
+    ];
+    let row = |a: [__m256; 3]| {
+        [
+            a[0],
+            a[1],
+            a[2],
+            sub(mul(q[1], a[2]), mul(q[2], a[1])),
+            sub(mul(q[2], a[0]), mul(q[0], a[2])),
+            sub(mul(q[0], a[1]), mul(q[1], a[0])),
+        ]
+    };
+    [row(au), row(av)]
+}
+
 /// One model point's term of Eq. (1) at `pose`: the map at its projection. An unprojectable point
 /// costs the truncation value, so the cost never rewards pushing points out of view.
 #[inline]
@@ -241,8 +356,11 @@ impl ViewMask {
         self.visible_points_in(pin, pose, points, out);
     }
 
-    /// [`Self::visible_points`] compiled for AVX2, where `f32::round` is a few inline vector
-    /// instructions instead of a libm call (the same values).
+    /// [`Self::visible_points`] compiled for AVX2, eight points at a time wherever all eight
+    /// project: their warp, projection and rounding in vectors ([`warp_project8_avx2`]; the
+    /// rounding half away from zero as `f32::round`, up to the sign of a zero, which no test
+    /// below tells apart), then the mask read for the lanes inside the image. The same points in
+    /// the same order.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn visible_points_avx2(
@@ -252,10 +370,51 @@ impl ViewMask {
         points: &[[f32; 3]],
         out: &mut Vec<[f32; 3]>,
     ) {
-        self.visible_points_in(pin, pose, points, out);
+        use std::arch::x86_64::*;
+        out.clear();
+        let chunks = points.chunks_exact(8);
+        let rest = chunks.remainder();
+        let (w, h) = (self.width as f32, self.height as f32);
+        // `f32::round`: the truncation, moved one away from zero when the dropped part is ≥ ½.
+        let round = |x: __m256| {
+            let t = _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(x);
+            let dropped = _mm256_andnot_ps(_mm256_set1_ps(-0.0), _mm256_sub_ps(x, t));
+            let away = _mm256_or_ps(_mm256_set1_ps(1.0), _mm256_and_ps(x, _mm256_set1_ps(-0.0)));
+            let up = _mm256_cmp_ps::<_CMP_GE_OQ>(dropped, _mm256_set1_ps(0.5));
+            _mm256_blendv_ps(t, _mm256_add_ps(t, away), up)
+        };
+        for chunk in chunks {
+            // SAFETY: the CPU has AVX2 and the chunk holds eight points.
+            let Some(Projected8 { u, v, .. }) = (unsafe { warp_project8_avx2(pin, pose, chunk) })
+            else {
+                self.visible_points_of(pin, pose, chunk, out);
+                continue;
+            };
+            let (x, y) = (round(u), round(v));
+            // NaN is outside, as in `contains`.
+            let inside = crate::field::lanes_in_box_avx2(x, y, w, h);
+            let mut lanes = _mm256_movemask_ps(inside) as u32;
+            if lanes == 0 {
+                continue;
+            }
+            let (mut xs, mut ys) = ([0i32; 8], [0i32; 8]);
+            // SAFETY: eight lanes into eight integers. Inside the image the coordinates are
+            // integers in 0..width and 0..height, so the conversion is exact.
+            unsafe {
+                _mm256_storeu_si256(xs.as_mut_ptr().cast(), _mm256_cvttps_epi32(x));
+                _mm256_storeu_si256(ys.as_mut_ptr().cast(), _mm256_cvttps_epi32(y));
+            }
+            while lanes != 0 {
+                let i = lanes.trailing_zeros() as usize;
+                lanes &= lanes - 1;
+                if self.valid[ys[i] as usize * self.width as usize + xs[i] as usize] {
+                    out.push(chunk[i]);
+                }
+            }
+        }
+        self.visible_points_of(pin, pose, rest, out);
     }
 
-    #[inline(always)]
     fn visible_points_in(
         &self,
         pin: &Pinhole,
@@ -264,6 +423,18 @@ impl ViewMask {
         out: &mut Vec<[f32; 3]>,
     ) {
         out.clear();
+        self.visible_points_of(pin, pose, points, out);
+    }
+
+    /// The points of `points` that project into the mask, appended to `out`.
+    #[inline(always)]
+    fn visible_points_of(
+        &self,
+        pin: &Pinhole,
+        pose: &Rigid32,
+        points: &[[f32; 3]],
+        out: &mut Vec<[f32; 3]>,
+    ) {
         out.extend(points.iter().copied().filter(|&x| {
             pin.project(pose.apply(x))
                 .is_some_and(|(u, v)| self.contains(u, v))
@@ -345,6 +516,18 @@ impl CostMap for crate::field::FieldLevel {
     ) -> Option<[std::arch::x86_64::__m256; 3]> {
         // SAFETY: the caller guarantees AVX2.
         unsafe { crate::field::FieldLevel::sample_slope8_avx2(self, u, v) }
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn stars8_avx2(
+        &self,
+        u: std::arch::x86_64::__m256,
+        v: std::arch::x86_64::__m256,
+        du: &[std::arch::x86_64::__m256; 6],
+        dv: &[std::arch::x86_64::__m256; 6],
+    ) -> Option<[std::arch::x86_64::__m256; 13]> {
+        // SAFETY: the caller guarantees AVX2.
+        unsafe { super::star8::field_stars8_avx2(self, u, v, du, dv) }
     }
 }
 
@@ -557,6 +740,60 @@ mod tests {
             out.len()
         );
         assert!(out.iter().all(|p| p[0] < 0.0));
+    }
+
+    /// The AVX2 path keeps the same points in the same order as the one-point path: ties of the
+    /// rounding (u, v on half pixels, below zero and at the far border), a lens whose mask has
+    /// holes, points behind the camera, and the tail after the last chunk of eight.
+    #[test]
+    fn visible_points_eight_at_a_time_match_one_at_a_time() {
+        let pincushion = Camera::new(
+            1280,
+            720,
+            1100.0,
+            1100.0,
+            640.0,
+            360.0,
+            [0.3, 0.0, 0.0, 0.0, 0.0],
+        )
+        .unwrap();
+        let mask = ViewMask::new(&pincushion, 2.0);
+        let check = |pin: &Pinhole, pose: &Rigid32, points: &[[f32; 3]]| {
+            let (mut one, mut wide) = (Vec::new(), Vec::new());
+            mask.visible_points_in(pin, pose, points, &mut one);
+            mask.visible_points(pin, pose, points, &mut wide);
+            assert_eq!(one, wide);
+            one.len()
+        };
+        // A unit pinhole at depth 1 puts (u, v) exactly at (x, y): every quarter pixel along the
+        // rows and columns through the corners and the centre.
+        let unit = Pinhole {
+            fx: 1.0,
+            fy: 1.0,
+            cx: 0.0,
+            cy: 0.0,
+        };
+        let identity = Rigid32::from_pose(&Isometry3::identity());
+        let quarters = |n: usize| (0..4 * n + 17).map(|i| -2.0 + 0.25 * i as f32);
+        let mut grid: Vec<[f32; 3]> = Vec::new();
+        for y in [-0.5, 0.5, 1.5, 2.5, 360.0, 716.5, 717.5, 719.5, 720.5] {
+            grid.extend(quarters(1280).map(|x| [x, y, 1.0]));
+        }
+        for x in [-0.5, 1.5, 2.5, 640.0, 1276.5, 1277.5, 1279.5] {
+            grid.extend(quarters(720).map(|y| [x, y, 1.0]));
+        }
+        grid.push([5.0, 5.0, 1.0]);
+        let n = check(&unit, &identity, &grid);
+        assert!(n > 1000 && n < grid.len() / 2, "{n} of {}", grid.len());
+        // The box model at poses across the image, partly out of it, and half behind the camera.
+        let pin = Pinhole::at_level(&pincushion, 0);
+        let truth = Isometry3::new(Vector3::new(0.01, 0.02, 0.6), Vector3::new(0.3, 0.4, 0.1));
+        let (mut points, _) = testing::visible_box_model(&truth);
+        points.truncate(points.len() / 8 * 8 + 3);
+        for (dx, dz) in [(0.0, 0.0), (0.25, 0.0), (-0.3, 0.1), (0.0, -0.6)] {
+            let pose = Isometry3::translation(dx, 0.0, dz) * truth;
+            check(&pin, &Rigid32::from_pose(&pose), &points);
+        }
     }
 
     #[test]

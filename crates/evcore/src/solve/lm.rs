@@ -233,31 +233,9 @@ unsafe fn sampled8_avx2<M: CostMap>(
     chunk: &[[f32; 3]],
 ) -> Option<[Sampled; 8]> {
     use std::arch::x86_64::*;
-    debug_assert_eq!(chunk.len(), 8);
-    let base = chunk.as_ptr().cast::<f32>();
-    let lanes = _mm256_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21);
-    // SAFETY: the gathers read coordinate c of the eight points, within `chunk`.
-    let coord = |c: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(c), lanes) };
-    let (x, y, z) = (coord(0), coord(1), coord(2));
-    let s = _mm256_set1_ps;
-    // r[3i]·x + r[3i+1]·y + r[3i+2]·z + t[i], added left to right as in `Rigid32::apply`.
-    let row = |i: usize| {
-        let r = &rig.r[3 * i..3 * i + 3];
-        let xy = _mm256_add_ps(_mm256_mul_ps(s(r[0]), x), _mm256_mul_ps(s(r[1]), y));
-        _mm256_add_ps(_mm256_add_ps(xy, _mm256_mul_ps(s(r[2]), z)), s(rig.t[i]))
-    };
-    let p = [row(0), row(1), row(2)];
-    // `Pinhole::project` refuses a depth below the minimum (and takes NaN, which the map refuses).
-    if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(
-        p[2],
-        s(super::cost::MIN_DEPTH_M),
-    )) != 0
-    {
-        return None;
-    }
-    let iz = _mm256_div_ps(s(1.0), p[2]);
-    let u = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(s(pin.fx), p[0]), iz), s(pin.cx));
-    let v = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(s(pin.fy), p[1]), iz), s(pin.cy));
+    // SAFETY: the CPU has AVX2 and `chunk` holds eight points.
+    let super::cost::Projected8 { p, u, v } =
+        unsafe { super::cost::warp_project8_avx2(pin, rig, chunk) }?;
     // SAFETY: the CPU has AVX2.
     let at = unsafe { map.sample_grad8_avx2(u, v) }?;
     let mut lanes_out = [[0.0f32; 8]; 6];

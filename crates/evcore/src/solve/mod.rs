@@ -6,6 +6,8 @@ pub mod cascade;
 pub mod cost;
 pub mod lm;
 pub mod search;
+#[cfg(target_arch = "x86_64")]
+mod star8;
 
 pub use cascade::{Schedule, SolverMode, StepKind};
 pub use cost::{CostMap, Pinhole, Rigid32};

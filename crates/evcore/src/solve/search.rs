@@ -12,6 +12,8 @@
 //! of view: 60 mm / 13° against 6 mm / 1° with the test).
 
 use super::cost::{apply_increment, image_jacobian, CostMap, Pinhole, Rigid32};
+#[cfg(target_arch = "x86_64")]
+use super::cost::{image_jacobian8_avx2, warp_project8_avx2, Projected8};
 use super::lm::{robust_loss, LmParams, Robust};
 use crate::se3::{unit_twist, Pose};
 use nalgebra::{Point3, Vector3};
@@ -161,46 +163,53 @@ fn search_step_in<M: CostMap, const AVX2: bool>(
     let d: [f32; 6] = std::array::from_fn(|k| deltas[k] as f32);
     let far = map.max_value();
     let gate = gate.filter(|g| g.min_t > 0.0);
-    let gated = gate.is_some();
-    let rho = |r: f32| gate.map_or(r, |g| robust_loss(g.robust, r, g.robust_px).0);
     // Serial on purpose: the tracker owns one core and leaves the other to the event source; on two
     // cores rayon's spinning workers cost more than they save (measured in benches/RESULTS.md).
-    let mut sums = [0.0f32; N_CANDIDATES];
-    // With the test: per candidate, the sum and the sum of squares of the per-point gains, and the
-    // number of points that project (an unprojectable point costs `far` everywhere: no gain).
-    let mut gain = [0.0f64; N_CANDIDATES];
-    let mut gain_sq = [0.0f64; N_CANDIDATES];
-    let mut n_projected = 0usize;
-    for &x in points {
+    let mut tally = Tally::new(gate);
+    let one = |x: [f32; 3], tally: &mut Tally| {
         let p = rig.apply(x);
         let Some((u, v)) = pin.project(p) else {
-            sums.iter_mut().for_each(|s| *s += far);
-            continue;
+            tally.unprojected(far);
+            return;
         };
         let j = image_jacobian(pin, p, pivot);
         let du: [f32; 6] = std::array::from_fn(|k| d[k] * j[0][k]);
         let dv: [f32; 6] = std::array::from_fn(|k| d[k] * j[1][k]);
-        if gated {
-            // The point's own 13 values (0 + x is x: the sums come out as in the plain path).
-            let mut own = [0.0f32; N_CANDIDATES];
-            star::<M, AVX2>(map, u, v, &du, &dv, &mut own);
-            let null = rho(own[0]);
-            for i in 0..N_CANDIDATES {
-                sums[i] += own[i];
-                let g = f64::from(null - rho(own[i]));
-                gain[i] += g;
-                gain_sq[i] += g * g;
+        // 0 + x is x: the sums come out as if the star added into them directly.
+        let mut own = [0.0f32; N_CANDIDATES];
+        star::<M, AVX2>(map, u, v, &du, &dv, &mut own);
+        tally.take(&own);
+    };
+    let mut rest = points;
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 {
+        let chunks = points.chunks_exact(8);
+        rest = chunks.remainder();
+        for chunk in chunks {
+            // SAFETY: `AVX2` is only set by `search_step_avx2`, which runs on CPUs with AVX2.
+            match unsafe { stars8_avx2(map, pin, &rig, pivot, &d, chunk) } {
+                Some(cols) => {
+                    for j in 0..8 {
+                        tally.take(&std::array::from_fn(|i| cols[i][j]));
+                    }
+                }
+                None => chunk.iter().for_each(|&x| one(x, &mut tally)),
             }
-            n_projected += 1;
-        } else {
-            star::<M, AVX2>(map, u, v, &du, &dv, &mut sums);
         }
     }
+    rest.iter().for_each(|&x| one(x, &mut tally));
+    let Tally {
+        sums,
+        gain,
+        gain_sq,
+        n_projected,
+        ..
+    } = tally;
     let n = points.len().max(1) as f32;
     let costs: [f32; N_CANDIDATES] = std::array::from_fn(|i| sums[i] / n);
     // Ties keep the lower index, so the null candidate wins unless something is strictly better.
     let best = (0..N_CANDIDATES).fold(0, |b, i| if costs[i] < costs[b] { i } else { b });
-    let t = if !gated {
+    let t = if gate.is_none() {
         f32::NAN
     } else if best == 0 {
         0.0
@@ -225,6 +234,90 @@ fn search_step_in<M: CostMap, const AVX2: bool>(
         best,
         t,
     }
+}
+
+/// The running sums of a search step, point by point in the order of the points: per candidate,
+/// Eq. (1)'s sum and, with a gate, the sum and the sum of squares of the per-point gains over the
+/// null candidate in the gate's robust loss, and the number of points that project.
+struct Tally {
+    gate: Option<Gate>,
+    sums: [f32; N_CANDIDATES],
+    gain: [f64; N_CANDIDATES],
+    gain_sq: [f64; N_CANDIDATES],
+    n_projected: usize,
+}
+
+impl Tally {
+    fn new(gate: Option<Gate>) -> Self {
+        Self {
+            gate,
+            sums: [0.0; N_CANDIDATES],
+            gain: [0.0; N_CANDIDATES],
+            gain_sq: [0.0; N_CANDIDATES],
+            n_projected: 0,
+        }
+    }
+
+    /// A point that does not project costs `far` (the truncation value) for every candidate and
+    /// gains nothing.
+    #[inline(always)]
+    fn unprojected(&mut self, far: f32) {
+        self.sums.iter_mut().for_each(|s| *s += far);
+    }
+
+    /// A projected point's 13 values.
+    #[inline(always)]
+    fn take(&mut self, own: &[f32; N_CANDIDATES]) {
+        let Some(g) = self.gate else {
+            for i in 0..N_CANDIDATES {
+                self.sums[i] += own[i];
+            }
+            return;
+        };
+        let rho = |r: f32| robust_loss(g.robust, r, g.robust_px).0;
+        let null = rho(own[0]);
+        for i in 0..N_CANDIDATES {
+            self.sums[i] += own[i];
+            let gi = f64::from(null - rho(own[i]));
+            self.gain[i] += gi;
+            self.gain_sq[i] += gi * gi;
+        }
+        self.n_projected += 1;
+    }
+}
+
+/// The 13 values of the stars of the eight points of `chunk` (candidate-major, one array of eight
+/// points per candidate), each what [`star`] gives for that point: the warp, projection, image
+/// Jacobian and offsets run in vectors with the same operations in the same order as the one-point
+/// path, so the values are the same bits. None when a point does not project or the map has no
+/// vector path for these stars (the caller then takes the points one by one).
+///
+/// # Safety
+/// The CPU must have AVX2, and `chunk` must hold eight points.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn stars8_avx2<M: CostMap>(
+    map: &M,
+    pin: &Pinhole,
+    rig: &Rigid32,
+    pivot: [f32; 3],
+    d: &[f32; 6],
+    chunk: &[[f32; 3]],
+) -> Option<[[f32; 8]; N_CANDIDATES]> {
+    use std::arch::x86_64::*;
+    // SAFETY (all three calls): the CPU has AVX2 and `chunk` holds eight points.
+    let Projected8 { p, u, v } = unsafe { warp_project8_avx2(pin, rig, chunk) }?;
+    let j = unsafe { image_jacobian8_avx2(pin, &p, pivot) };
+    let du = std::array::from_fn(|k| _mm256_mul_ps(_mm256_set1_ps(d[k]), j[0][k]));
+    let dv = std::array::from_fn(|k| _mm256_mul_ps(_mm256_set1_ps(d[k]), j[1][k]));
+    let vals = unsafe { map.stars8_avx2(u, v, &du, &dv) }?;
+    let mut cols = [[0.0f32; 8]; N_CANDIDATES];
+    for (col, val) in cols.iter_mut().zip(vals) {
+        // SAFETY: eight lanes into eight floats.
+        unsafe { _mm256_storeu_ps(col.as_mut_ptr(), val) };
+    }
+    Some(cols)
 }
 
 /// The map's star: its AVX2 version where [`search_step_avx2`] asks for it.
@@ -484,6 +577,81 @@ mod tests {
             gated.costs
         );
         assert_eq!(gated.pose, truth);
+    }
+
+    /// Eight points at a time (AVX2) must give the one-point path's costs, winner and t bit for
+    /// bit, plain and gated: chunks wholly inside the field, across its border or off it, points
+    /// behind the camera, and the tail after the last chunk of eight.
+    #[test]
+    fn eight_points_at_a_time_match_one_at_a_time() {
+        let pin = Pinhole::at_level(&Camera::imx636(), 0);
+        let truth = Isometry3::new(Vector3::new(0.01, 0.02, 0.6), Vector3::new(0.3, 0.4, 0.1));
+        let (mut points, _) = testing::visible_box_model(&truth);
+        points.truncate(points.len() / 8 * 8 + 5);
+        // The roi covers the left part of the projected box only.
+        let roi = crate::image::Roi {
+            x0: 420,
+            y0: 150,
+            width: 260,
+            height: 420,
+        };
+        let mut rng = crate::rng::Rng::new(5);
+        let mask: Vec<u8> = (0..roi.area())
+            .map(|_| u8::from(rng.below(30) == 0))
+            .collect();
+        let mut field =
+            crate::field::DistanceField::new(crate::field::FieldParams::default()).expect("field");
+        field.build(&mask, roi, 1).expect("build");
+        let map = field.level(0);
+        let pivot = centroid(&points);
+        let (mut vector_chunks, mut fallback_chunks) = (0, 0);
+        for i in 0..40 {
+            let s = f64::from(i) / 40.0;
+            let mut pose = apply_increment(
+                &truth,
+                &Vector6::new(0.02 * s - 0.01, 0.03 * s, 0.0, 0.2 * s, -0.1 * s, 0.3 * s),
+                &(truth * Point3::from(pivot)).coords,
+            );
+            if i == 39 {
+                // Half the box behind the camera plane.
+                pose = Isometry3::translation(0.0, 0.0, -0.6) * pose;
+            }
+            let deltas = axis_steps(&pin, &pose, &points, &pivot, 3);
+            for gate in [None, Some(gate3())] {
+                let one =
+                    search_step_in::<_, false>(map, &pin, &pose, &points, &pivot, &deltas, gate);
+                let wide = search_step(map, &pin, &pose, &points, &pivot, &deltas, gate);
+                assert_eq!(
+                    one.costs.map(f32::to_bits),
+                    wide.costs.map(f32::to_bits),
+                    "pose {i}"
+                );
+                assert_eq!((one.best, one.candidate), (wide.best, wide.candidate));
+                assert_eq!(one.t.to_bits(), wide.t.to_bits(), "pose {i}");
+                assert_eq!(one.pose, wide.pose);
+            }
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") {
+                let rig = Rigid32::from_pose(&pose);
+                let c = (pose * Point3::from(pivot)).coords;
+                let pivot_c = [c.x as f32, c.y as f32, c.z as f32];
+                let d = deltas.map(|x| x as f32);
+                for chunk in points.chunks_exact(8) {
+                    // SAFETY: the CPU has AVX2 and the chunk holds eight points.
+                    match unsafe { stars8_avx2(map, &pin, &rig, pivot_c, &d, chunk) } {
+                        Some(_) => vector_chunks += 1,
+                        None => fallback_chunks += 1,
+                    }
+                }
+            }
+        }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            assert!(
+                vector_chunks > 100 && fallback_chunks > 100,
+                "{vector_chunks} {fallback_chunks}"
+            );
+        }
     }
 
     #[test]
