@@ -9,8 +9,8 @@ of the loop (``rest_cpu_s``: the Python loop and ingest), events and the ground-
 
 ``record OUT.npz [--arms] [--duration S]``: the rendered source's inputs of one such episode (the
 object, camera and link poses at every tick) for open-loop replays.
-``replay IN.npz COUNTS.npy``: feed the recorded inputs to this build's rendered source; prints its
-CPU time per simulated second and saves the per-pixel event counts.
+``replay IN.npz COUNTS.npy [--source render|render-fast]``: feed the recorded inputs to this build's
+rendered source; prints its CPU time per simulated second and saves the per-pixel event counts.
 ``compare A.npy B.npy``: per-pixel event counts of two replays (e.g. ``main``'s build and this one).
 """
 
@@ -140,7 +140,7 @@ def record(out: str, arms: bool, duration_s: float) -> None:
     print(f"{len(log)} calls recorded in {out}")
 
 
-def replay(inputs: str, counts_out: str) -> None:
+def replay(inputs: str, counts_out: str, source: str) -> None:
     from evservo.sim.arms import ArmMeshes
     from evservo.sim.scene import DualArmScene
 
@@ -152,7 +152,8 @@ def replay(inputs: str, counts_out: str) -> None:
         scene.reset_to_start(*VIEW)
         arms = ArmMeshes(scene)
     cam = _evcore.Camera.imx636()
-    src = sources.RenderedSource(cam, "box", T_c_o[0], int(t[0]), SEED, arms=arms)
+    src = sources.make_event_source(source, cam, "box", T_c_o[0], int(t[0]), SEED, arms=arms)
+    assert isinstance(src, sources.RenderedSource)
     if arms is not None:
         src.occ = occ[0]
     counts = np.zeros(cam.width * cam.height, np.int64)
@@ -164,6 +165,9 @@ def replay(inputs: str, counts_out: str) -> None:
             None if np.isnan(T_w_c[k]).any() else T_w_c[k],
             None if arms is None else occ[k],
         )
+        np.add.at(counts, ev["y"].astype(np.int64) * cam.width + ev["x"], 1)
+    # The ticks after the last render (a build that renders only every few ticks).
+    for ev in getattr(src, "flush", list)():
         np.add.at(counts, ev["y"].astype(np.int64) * cam.width + ev["x"], 1)
     cpu = cpu_s() - c0
     sim_s = (t[-1] - t[0]) * 1e-6
@@ -211,6 +215,7 @@ def main() -> None:
     rp = sub.add_parser("replay")
     rp.add_argument("inputs")
     rp.add_argument("counts")
+    rp.add_argument("--source", choices=sources.RENDERED_SOURCES, default="render")
     c = sub.add_parser("compare")
     c.add_argument("a")
     c.add_argument("b")
@@ -220,7 +225,7 @@ def main() -> None:
     elif args.cmd == "record":
         record(args.out, args.arms, args.duration)
     elif args.cmd == "replay":
-        replay(args.inputs, args.counts)
+        replay(args.inputs, args.counts, args.source)
     else:
         compare(args.a, args.b)
 

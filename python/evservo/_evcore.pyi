@@ -233,10 +233,17 @@ class SimCamera:
         full-frame reference path, with the same events."""
         ...
     def advance(
-        self, T_c_o: _F64, t_us: int, T_c_bg: _F64 | None = None, occluders: _F64 | None = None
+        self,
+        T_c_o: _F64,
+        t_us: int,
+        T_c_bg: _F64 | None = None,
+        occluders: _F64 | None = None,
+        ticks: list[int] | None = None,
     ) -> npt.NDArray[np.void]:
         """Render at ``t_us`` and step the sensor; ``occluders``: (N, 4, 4) poses of the N
-        occluder meshes in the camera (required once occluders are set)."""
+        occluder meshes in the camera (required once occluders are set); ``ticks`` (µs, between
+        the previous frame and ``t_us``): also step the sensor at these times on the intensities
+        interpolated linearly between the previous render and this one."""
         ...
     def set_occluders(self, meshes: list[Mesh]) -> None:
         """Meshes drawn with the object and z-tested against it; the next frame is a full frame."""

@@ -123,28 +123,12 @@ pub fn evidence(
     points: &[[f32; 3]],
     q: &Query<'_>,
 ) -> Evidence {
-    let (mut supported, mut supported_any, mut tight, mut visible) =
-        (0usize, 0usize, 0usize, 0usize);
-    let (w, h) = (q.image.0 as f32, q.image.1 as f32);
-    for &x in points {
-        let Some((u, v)) = pin.project(pose.apply(x)) else {
-            continue;
-        };
-        if u < -0.5 || v < -0.5 || u > w - 0.5 || v > h - 0.5 {
-            continue;
-        }
-        visible += 1;
-        let f = level.sample(u, v);
-        if f > q.inlier_px {
-            continue;
-        }
-        supported_any += 1;
-        let fresh = q
-            .fresh_since
-            .is_none_or(|(recency, since)| recency.last_us(u, v) >= since);
-        supported += usize::from(fresh);
-        tight += usize::from(fresh && f <= TIGHT_PX);
-    }
+    let Tally {
+        visible,
+        supported_any,
+        supported,
+        tight,
+    } = tally(level, pin, pose, points, q);
     let n = visible.max(1) as f32;
     let (chance, chance_tight) = chance_level(level, q.region, q.inlier_px);
     Evidence {
@@ -161,6 +145,117 @@ pub fn evidence(
         },
         ..Evidence::default()
     }
+}
+
+/// Counts of model points: in the image, supported (without and with the freshness requirement),
+/// and supported at the tight distance.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Tally {
+    visible: usize,
+    supported_any: usize,
+    supported: usize,
+    tight: usize,
+}
+
+impl Tally {
+    /// Counts one point projected to (u, v) (pixels) where the field reads `f`.
+    #[inline(always)]
+    fn add(&mut self, q: &Query<'_>, u: f32, v: f32, f: f32) {
+        let (w, h) = (q.image.0 as f32, q.image.1 as f32);
+        if u < -0.5 || v < -0.5 || u > w - 0.5 || v > h - 0.5 {
+            return;
+        }
+        self.visible += 1;
+        if f > q.inlier_px {
+            return;
+        }
+        self.supported_any += 1;
+        let fresh = q
+            .fresh_since
+            .is_none_or(|(recency, since)| recency.last_us(u, v) >= since);
+        self.supported += usize::from(fresh);
+        self.tight += usize::from(fresh && f <= TIGHT_PX);
+    }
+
+    /// Counts `points` one at a time.
+    fn add_points(
+        &mut self,
+        level: &FieldLevel,
+        pin: &Pinhole,
+        pose: &Rigid32,
+        points: &[[f32; 3]],
+        q: &Query<'_>,
+    ) {
+        for &x in points {
+            if let Some((u, v)) = pin.project(pose.apply(x)) {
+                self.add(q, u, v, level.sample(u, v));
+            }
+        }
+    }
+}
+
+/// The [`Tally`] of `points` at `pose` on `level`.
+fn tally(
+    level: &FieldLevel,
+    pin: &Pinhole,
+    pose: &Rigid32,
+    points: &[[f32; 3]],
+    q: &Query<'_>,
+) -> Tally {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        return unsafe { tally_avx2(level, pin, pose, points, q) };
+    }
+    let mut t = Tally::default();
+    t.add_points(level, pin, pose, points, q);
+    t
+}
+
+/// [`tally`] eight points at a time: their warp and projection
+/// ([`crate::solve::cost::warp_project8_avx2`]) and, when all eight cells lie inside the level,
+/// their bilinear values ([`FieldLevel::sample_slope8_avx2`]) in vectors, each lane formed by the
+/// same operations as [`Pinhole::project`] and [`FieldLevel::sample`], so the same counts. A
+/// chunk with a point the projection refuses takes the one-point path, as does the remainder.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn tally_avx2(
+    level: &FieldLevel,
+    pin: &Pinhole,
+    pose: &Rigid32,
+    points: &[[f32; 3]],
+    q: &Query<'_>,
+) -> Tally {
+    use std::arch::x86_64::*;
+    let mut t = Tally::default();
+    let mut chunks = points.chunks_exact(8);
+    for chunk in &mut chunks {
+        // SAFETY: the CPU has AVX2 and the chunk holds eight points.
+        let Some(p) = (unsafe { crate::solve::cost::warp_project8_avx2(pin, pose, chunk) }) else {
+            t.add_points(level, pin, pose, chunk, q);
+            continue;
+        };
+        let (mut u, mut v, mut f) = ([0.0f32; 8], [0.0f32; 8], [0.0f32; 8]);
+        // SAFETY: 8-lane stores into 8-lane arrays.
+        unsafe {
+            _mm256_storeu_ps(u.as_mut_ptr(), p.u);
+            _mm256_storeu_ps(v.as_mut_ptr(), p.v);
+        }
+        match level.sample_slope8_avx2(p.u, p.v) {
+            // SAFETY: as above.
+            Some([value, _, _]) => unsafe { _mm256_storeu_ps(f.as_mut_ptr(), value) },
+            None => {
+                for i in 0..8 {
+                    f[i] = level.sample(u[i], v[i]);
+                }
+            }
+        }
+        for i in 0..8 {
+            t.add(q, u[i], v[i], f[i]);
+        }
+    }
+    t.add_points(level, pin, pose, chunks.remainder(), q);
+    t
 }
 
 /// A pose that accounts for this much of the event mass around it is not penalised: noise and
@@ -357,6 +452,80 @@ mod tests {
                 assert_eq!(plain, wide, "{region:?} {inlier}");
             }
         }
+    }
+
+    /// The eight-at-a-time counts equal the one-at-a-time counts: poses across the image border,
+    /// points behind the camera, a field roi that cuts the model (chunks straddling it), with and
+    /// without the freshness requirement.
+    #[test]
+    fn eight_points_at_a_time_count_as_one_at_a_time() {
+        let cam = Camera::imx636();
+        let pin = Pinhole::at_level(&cam, 0);
+        let recency = Recency::new(&cam, &cam.rectified());
+        let mut rng = Rng::new(21);
+        for _ in 0..3000 {
+            recency.record(
+                rng.below(1280) as u16,
+                rng.below(720) as u16,
+                rng.below(100) as i64,
+            );
+        }
+        let rot = Vector3::new(0.3, 0.4, 0.1);
+        let truth = Isometry3::new(Vector3::new(0.0, 0.0, 0.6), rot);
+        let (points, _) = testing::visible_box_model(&truth);
+        let roi = Roi {
+            x0: 500,
+            y0: 200,
+            width: 300,
+            height: 250,
+        };
+        let full = mask_of(&pin, &truth, &points, 20_000);
+        let mask: Vec<u8> = (0..roi.height as usize)
+            .flat_map(|y| {
+                let row = (roi.y0 as usize + y) * 1280 + roi.x0 as usize;
+                full[row..row + roi.width as usize].to_vec()
+            })
+            .collect();
+        let mut field = DistanceField::new(FieldParams::default()).unwrap();
+        field.build(&mask, roi, 1).unwrap();
+        let (mut supported, mut unsupported) = (0, 0);
+        for k in 0..120 {
+            let dx = rng.uniform() * 1.4 - 0.7;
+            let dy = rng.uniform() * 0.8 - 0.4;
+            // Every tenth pose puts part of the box behind the camera.
+            let z = if k % 10 == 0 {
+                0.05
+            } else {
+                0.3 + rng.uniform()
+            };
+            let pose = Isometry3::new(Vector3::new(dx * z, dy * z, z), rot);
+            let rig = Rigid32::from_pose(&pose);
+            for fresh_since in [None, Some((&recency, 50))] {
+                let q = Query {
+                    inlier_px: 2.0,
+                    region: roi,
+                    image: (1280, 720),
+                    fresh_since,
+                    explain: false,
+                };
+                let mut one = Tally::default();
+                one.add_points(field.level(0), &pin, &rig, &points, &q);
+                assert_eq!(
+                    tally(field.level(0), &pin, &rig, &points, &q),
+                    one,
+                    "{pose:?}"
+                );
+                if one.supported > 0 {
+                    supported += 1;
+                } else {
+                    unsupported += 1;
+                }
+            }
+        }
+        assert!(
+            supported > 40 && unsupported > 10,
+            "{supported} {unsupported}"
+        );
     }
 
     /// Rasterise the projected points of `pose` into a full-image mask, plus `noise` random pixels.

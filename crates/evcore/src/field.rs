@@ -446,6 +446,10 @@ pub struct DistanceField {
     built: u32,
     /// Returned by [`Self::level`] when `levels` is empty.
     absent: FieldLevel,
+    /// The value buffers of the levels the last build skipped, kept at their length so that the
+    /// next build of that level reuses them without zeroing them first (a search step builds
+    /// level 0 only, the LM step after it all three: a memset of the coarse levels each time).
+    parked: Vec<Vec<f32>>,
     /// Pooled masks of levels 1 and 2, and one row of pooling work.
     pooled: [Vec<u8>; 2],
     pair_row: Vec<u8>,
@@ -479,6 +483,7 @@ impl DistanceField {
             levels,
             built: 0,
             absent,
+            parked: Vec::new(),
             pooled: Default::default(),
             pair_row: Vec::new(),
             scratch: Scratch::default(),
@@ -528,12 +533,14 @@ impl DistanceField {
         self.absent.tau_px = tau;
         let Self {
             levels,
+            parked,
             pooled,
             pair_row,
             scratch,
             ..
         } = self;
         levels.resize_with(configured, || FieldLevel::empty(0, tau));
+        parked.resize_with(configured, Vec::new);
         let [m1, m2] = pooled;
         for l in 0..n_levels {
             let lvl = &mut levels[l as usize];
@@ -552,6 +559,9 @@ impl DistanceField {
                 }
             };
             let (w, h) = (lvl.roi.width as usize, lvl.roi.height as usize);
+            if lvl.value.is_empty() {
+                std::mem::swap(&mut lvl.value, &mut parked[l as usize]);
+            }
             // Every entry is overwritten, so only new ones need initialising.
             lvl.value.resize(w * h, 0.0);
             truncated_field(level_mask, w, h, tau, &mut lvl.value, scratch);
@@ -565,6 +575,9 @@ impl DistanceField {
                 width: 0,
                 height: 0,
             };
+            if !lvl.value.is_empty() {
+                std::mem::swap(&mut lvl.value, &mut parked[l]);
+            }
             lvl.value.clear();
         }
         self.built = n_levels;
@@ -716,6 +729,20 @@ trait Lane: Copy + Ord + Default {
     fn from_small(v: usize) -> Self;
     fn sat_add(self, other: Self) -> Self;
     fn index(self) -> usize;
+    /// The squared distances of the `N` pixels whose row window `seg` holds (see [`window_min`]),
+    /// or None when every candidate in `seg` is capped (≥ `capsq`): then each pixel's minimum is
+    /// `capsq`. `WIDE` as in [`Lane::look_up`].
+    #[inline(always)]
+    fn block_min<const N: usize, const WIDE: bool>(
+        seg: &[Self],
+        window: usize,
+        capsq: Self,
+    ) -> Option<[Self; N]> {
+        if seg.iter().fold(capsq, |m, &v| m.min(v)) == capsq {
+            return None;
+        }
+        Some(window_min::<Self, N>(seg, window))
+    }
     /// `out[i] = lut[d2[i]]` (indices clamped to the table); `WIDE` only from
     /// [`windowed_field_avx2`], where a lane type may look up in AVX2 vectors.
     #[inline(always)]
@@ -728,6 +755,25 @@ trait Lane: Copy + Ord + Default {
 }
 
 impl Lane for u8 {
+    #[inline(always)]
+    fn block_min<const N: usize, const WIDE: bool>(
+        seg: &[Self],
+        window: usize,
+        capsq: Self,
+    ) -> Option<[Self; N]> {
+        #[cfg(target_arch = "x86_64")]
+        if WIDE && N == 64 {
+            // SAFETY: WIDE is only set by `windowed_field_avx2`, which runs on CPUs with AVX2.
+            let wide = unsafe { block_min_bytes_avx2(seg, window, capsq) }?;
+            let mut d2 = [0; N];
+            d2.copy_from_slice(&wide);
+            return Some(d2);
+        }
+        if seg.iter().fold(capsq, |m, &v| m.min(v)) == capsq {
+            return None;
+        }
+        Some(window_min::<Self, N>(seg, window))
+    }
     #[inline(always)]
     fn look_up<const WIDE: bool>(d2: &[Self], lut: &[f32], out: &mut [f32]) {
         #[cfg(target_arch = "x86_64")]
@@ -768,6 +814,59 @@ impl Lane for i16 {
     fn index(self) -> usize {
         self.max(0) as usize
     }
+}
+
+/// [`Lane::block_min`] for 64 byte lanes, the block held in two AVX2 registers. Before, the
+/// compiler kept the block on the stack and tested for the early stop with a horizontal maximum.
+/// The same minima (`adds_epu8` is `saturating_add`); the stop is tested at every offset, as "k²
+/// subtracted from every lane with saturation leaves zero", i.e. every pixel already has a
+/// candidate no farther than k²: the offsets from k on cannot lower any pixel, so stopping at
+/// any such k gives the same values as [`window_min`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn block_min_bytes_avx2(seg: &[u8], window: usize, capsq: u8) -> Option<[u8; 64]> {
+    use std::arch::x86_64::*;
+    let n = seg.len();
+    // Offsets up to ⌊τ⌋ ≤ MAX_BYTE_WINDOW_PX keep k² within a byte.
+    assert!(n >= 2 * window + 64 && window <= MAX_BYTE_WINDOW_PX);
+    let load = |i: usize| {
+        debug_assert!(i + 32 <= n);
+        // SAFETY: every caller's i + 32 ≤ n (the assertion above).
+        unsafe { _mm256_loadu_si256(seg.as_ptr().add(i).cast()) }
+    };
+    // Capped everywhere: every byte ≥ capsq (the last load overlaps the ones before, which the
+    // minimum does not mind).
+    let mut low = load(n - 32);
+    for i in (0..n - 32).step_by(32) {
+        low = _mm256_min_epu8(low, load(i));
+    }
+    let cap = _mm256_set1_epi8(capsq as i8);
+    let below_cap = _mm256_subs_epu8(cap, low);
+    if _mm256_testz_si256(below_cap, below_cap) == 1 {
+        return None;
+    }
+    let (mut a0, mut a1) = (load(window), load(window + 32));
+    for k in 1..=window {
+        let kk = _mm256_set1_epi8((k * k) as u8 as i8);
+        let above = _mm256_or_si256(_mm256_subs_epu8(a0, kk), _mm256_subs_epu8(a1, kk));
+        if _mm256_testz_si256(above, above) == 1 {
+            break;
+        }
+        let (l, r) = (window - k, window + k);
+        a0 = _mm256_min_epu8(a0, _mm256_adds_epu8(_mm256_min_epu8(load(l), load(r)), kk));
+        a1 = _mm256_min_epu8(
+            a1,
+            _mm256_adds_epu8(_mm256_min_epu8(load(l + 32), load(r + 32)), kk),
+        );
+    }
+    let mut d2 = [0u8; 64];
+    // SAFETY: two 32-byte stores into the 64-byte array.
+    unsafe {
+        _mm256_storeu_si256(d2.as_mut_ptr().cast(), a0);
+        _mm256_storeu_si256(d2.as_mut_ptr().add(32).cast(), a1);
+    }
+    Some(d2)
 }
 
 /// `out[i] = lut[min(d2[i], lut.len() − 1)]`, eight lanes to a gather from the (L1-resident)
@@ -826,12 +925,10 @@ fn row_pass<T: Lane, const N: usize, const WIDE: bool>(
             // Every candidate of the block capped (no active pixel within the cap of any of its
             // pixels, most of a roi): each pixel's minimum is cap², whose f is `far`. The same
             // value the window and the table give, without the window's full ⌊τ⌋ offsets.
-            if seg.iter().fold(capsq, |m, &v| m.min(v)) == capsq {
-                oblock.fill(far);
-                continue;
+            match T::block_min::<N, WIDE>(seg, window, capsq) {
+                None => oblock.fill(far),
+                Some(d2) => T::look_up::<WIDE>(&d2[..oblock.len()], lut, oblock),
             }
-            let d2 = window_min::<T, N>(seg, window);
-            T::look_up::<WIDE>(&d2[..oblock.len()], lut, oblock);
         }
     }
 }

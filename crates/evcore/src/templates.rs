@@ -416,6 +416,43 @@ fn chamfer(
     Some(sum / points.len().max(1) as f32)
 }
 
+/// The sweep's mask: `mask` (`width` × `height`, full resolution, nonzero = active) pooled into
+/// cells of 2^`level` × 2^`level` pixels, a cell active when it holds more active pixels than the
+/// background's firing would put there but rarely (see [`background_cell_bar`]); its width and
+/// height. A plain OR-pool lets scattered noise light most coarse cells (start-without-pose:
+/// 2 % of the pixels active, ≈ 1.3 per 8×8 cell, about three cells in four active), so every
+/// template scores a near-zero chamfer anywhere and the sweep cannot tell the object from the
+/// clutter; an edge crossing a cell puts several pixels in it.
+pub fn pool_above_background(
+    mask: &[u8],
+    width: usize,
+    height: usize,
+    level: u32,
+) -> (Vec<u8>, usize, usize) {
+    let cell = 1usize << level;
+    let (w, h) = (width.div_ceil(cell), height.div_ceil(cell));
+    let mut counts = vec![0u32; w * h];
+    for (y, row) in mask.chunks_exact(width.max(1)).take(height).enumerate() {
+        let cells = &mut counts[(y >> level) * w..][..w];
+        for (x, &m) in row.iter().enumerate() {
+            cells[x >> level] += u32::from(m != 0);
+        }
+    }
+    let bar = background_cell_bar(&counts);
+    (counts.iter().map(|&c| u8::from(c >= bar)).collect(), w, h)
+}
+
+/// The fewest active pixels a cell must hold to count as active: one more than the background's
+/// mean per cell plus three standard deviations (Poisson, so about 1 % of background cells pass).
+/// The mean comes from the share of empty cells (−ln of it), which the object's own cells, few
+/// and full, hardly move; on a clean image it is near 0 and one pixel is enough, as in an OR-pool.
+fn background_cell_bar(counts: &[u32]) -> u32 {
+    let n = counts.len().max(1) as f64;
+    let empty = counts.iter().filter(|&&c| c == 0).count() as f64;
+    let mean = -(empty.max(1.0) / n).ln();
+    1 + (mean + 3.0 * mean.sqrt()) as u32
+}
+
 /// Integral image of the active pixels (field value 0) of a level, to find where events crowd.
 struct ActiveCounts {
     x0: f64,
@@ -604,6 +641,105 @@ mod tests {
             dt < 0.004 && dr < 1e-9,
             "best placement {dt} m, {dr} rad off"
         );
+    }
+
+    #[test]
+    fn a_sweep_cell_needs_more_pixels_than_the_background_puts_there() {
+        // Clean, the object's edges in 3 cells of 100: an OR-pool (one pixel is enough).
+        let mut counts = vec![0u32; 97];
+        counts.extend([9, 12, 3]);
+        assert_eq!(background_cell_bar(&counts), 1);
+        // Poisson(1.3) background (e^-1.3 = 27 % of cells empty): mean 1.3 + 3 × 1.14 → 5.
+        let mut counts = vec![0u32; 27];
+        counts.extend(std::iter::repeat_n(2, 73));
+        assert_eq!(background_cell_bar(&counts), 5);
+        // Every cell full: bounded, not infinite.
+        assert!(background_cell_bar(&[64; 100]) < 20);
+    }
+
+    /// Scattered noise on 2 % of the pixels (the robustness suite's start-without-pose: about
+    /// 1.3 active pixels per 8×8 sweep cell). OR-pooled, it lights three sweep cells in four and
+    /// no sweep candidate lands on the cube; pooled above the background, one does.
+    #[test]
+    fn the_sweep_finds_a_cube_in_scattered_noise() {
+        let cam = Camera::imx636().rectified();
+        let (mesh, bank) = cube_bank(&cam);
+        let r = UnitQuaternion::from_scaled_axis(Vector3::new(0.5, -0.7, 0.3));
+        let truth = Pose::from_parts(Translation3::new(-0.15, 0.08, 0.8), r);
+        let dense = PointSetParams {
+            max_points: 4000,
+            ..PointSetParams::default()
+        };
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let mut mask = vec![0u8; w * h];
+        let (rig, pin) = (Rigid32::from_pose(&truth), Pinhole::at_level(&cam, 0));
+        for &x in &extract_point_set(&mesh, &cam, &truth, &dense)
+            .unwrap()
+            .points_o
+        {
+            let (u, v) = pin.project(rig.apply(x)).unwrap();
+            mask[v.round() as usize * w + u.round() as usize] = 1;
+        }
+        let mut state = 0x9e37_79b9_7f4a_7c15u64; // xorshift64: reproducible noise
+        for m in &mut mask {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            *m |= u8::from(state % 50 == 0);
+        }
+        // The sweep's level at 1280×720 (160 px wide).
+        let level = 3;
+        let cell = 1usize << level;
+        let (cw, ch) = (w.div_ceil(cell), h.div_ceil(cell));
+        let mut or_pooled = vec![0u8; cw * ch];
+        for (i, &m) in mask.iter().enumerate() {
+            or_pooled[(i / w / cell) * cw + (i % w) / cell] |= m;
+        }
+        let (above, aw, ah) = pool_above_background(&mask, w, h, level);
+        assert_eq!((aw, ah), (cw, ch));
+        let sweep_pin = Pinhole::at_level(&cam, level);
+        let centre = |p: &Pose| {
+            pin.project(Rigid32::from_pose(p).apply(centre_of(&bank)))
+                .unwrap()
+        };
+        let (tu, tv) = centre(&truth);
+        let r_px = f64::from(pin.fx) * bank.radius_m / truth.translation.z;
+        let on_cube = |pooled: &[u8]| {
+            let mut field = DistanceField::new(FieldParams {
+                levels: 1,
+                ..FieldParams::default()
+            })
+            .unwrap();
+            field
+                .build(pooled, Roi::full(cw as u32, ch as u32), 1)
+                .unwrap();
+            let found = bank.search(field.level(0), &sweep_pin);
+            let active = pooled.iter().filter(|&&m| m != 0).count() as f64 / pooled.len() as f64;
+            let nearest = found
+                .iter()
+                .map(|(p, _, _)| {
+                    let (u, v) = centre(p);
+                    f64::from((u - tu).hypot(v - tv))
+                })
+                .fold(f64::INFINITY, f64::min);
+            (nearest < 0.25 * r_px, active, nearest)
+        };
+        let (found_or, active_or, off_or) = on_cube(&or_pooled);
+        assert!(
+            !found_or && active_or > 0.6,
+            "OR-pooled: {active_or} of the cells active, nearest candidate {off_or} px off"
+        );
+        let (found, active, off) = on_cube(&above);
+        assert!(
+            found && active < 0.1,
+            "pooled above the background: {active} of the cells active, nearest {off} px off \
+             (the cube's image radius {r_px} px)"
+        );
+    }
+
+    fn centre_of(bank: &TemplateBank) -> [f32; 3] {
+        let c = bank.centre_o();
+        [c.x as f32, c.y as f32, c.z as f32]
     }
 
     /// A 15 cm grey cube and its template bank (default spacing and depths).

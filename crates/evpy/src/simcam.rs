@@ -82,9 +82,12 @@ impl PySimCamera {
 
     /// Render the object at `T_c_o` (4×4) at `t_us`, moving the background plane to `T_c_bg`
     /// if given (a change forces a full frame), and step the sensor. With occluders set,
-    /// `occluders` is their (N, 4, 4) poses in the camera. Returns the interval's events,
-    /// time-sorted EventCD. The first call only initialises the sensor.
-    #[pyo3(signature = (T_c_o, t_us, T_c_bg=None, occluders=None))]
+    /// `occluders` is their (N, 4, 4) poses in the camera. `ticks` (µs, increasing, strictly
+    /// between the previous frame and `t_us`): also step the sensor at these times on the
+    /// intensities interpolated linearly between the previous render and this one (one render,
+    /// several sensor steps). Returns the interval's events, time-sorted EventCD. The first
+    /// call only initialises the sensor.
+    #[pyo3(signature = (T_c_o, t_us, T_c_bg=None, occluders=None, ticks=None))]
     #[allow(non_snake_case)]
     fn advance<'py>(
         &mut self,
@@ -93,6 +96,7 @@ impl PySimCamera {
         t_us: i64,
         T_c_bg: Option<PyReadonlyArray2<'py, f64>>,
         occluders: Option<PyReadonlyArray3<'py, f64>>,
+        ticks: Option<Vec<i64>>,
     ) -> PyResult<Bound<'py, PyAny>> {
         let pose = pose_arg(&T_c_o)?;
         let bg = T_c_bg.map(|m| pose_arg(&m)).transpose()?;
@@ -104,7 +108,13 @@ impl PySimCamera {
         let bytes = py
             .detach(|| {
                 inner
-                    .advance_scene(&pose, &occ, t_us, bg.as_ref(), out)
+                    .advance_ticks(
+                        &pose,
+                        &occ,
+                        (ticks.as_deref().unwrap_or_default(), t_us),
+                        bg.as_ref(),
+                        out,
+                    )
                     .map(|_| pack_event_cd(out))
             })
             .map_err(to_py)?;

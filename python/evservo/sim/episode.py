@@ -15,7 +15,9 @@ Everything runs on the scene's simulated 1 kHz clock, in this order per millisec
 3. the arms move one tick;
 4. the event source turns the true relative pose ``T_c_o`` at the new time into the events of the
    last millisecond, which reach the tracker ``sensing_latency_s`` later (3.5 ms measured in the
-   paper), unless an injected dropout swallows them;
+   paper), unless an injected dropout swallows them; the ``render-fast`` source renders only when
+   something may have moved half a pixel and hands out the ticks in between with that render (ESIM's
+   adaptive sampling, :class:`~evservo.sim.sources.RenderedSource`), so its events can be up to 5 ms later;
 5. the synchronous tracker runs on the same clock: whenever it is free it takes every batch that
    has arrived and runs one step (one LM or one search step of the cascade); the step's compute
    time, measured or from a fixed cost model, is *charged to the clock*, so its pose is published
@@ -250,6 +252,9 @@ def _primed_source(
     )
     for t_us in range(-PREROLL_US + TICK_US, 1, TICK_US):
         tracker.ingest(source.events_until(t_us, pose_at(t_us)))
+    # A source that renders only every few ticks still holds the last ones: the loop starts complete.
+    for events in getattr(source, "flush", list)():
+        tracker.ingest(events)
     return source
 
 
@@ -363,6 +368,9 @@ def run_episode(
     T_w_c, T_w_o = scene.T_w_c(), scene.T_w_o()
     v_cmd, watchdog, arm_limited, mode = np.zeros(6), False, False, hold.mode
     last_seq, ended, lost_at, n_events, done = 0, "duration", None, 0, 0
+    # The stream time up to which the source's events are all out (µs): the tick's end, or for a source
+    # that renders every few ticks and hands their events out together (``covered_us``), its last render.
+    covered_us = 0
     with StopOnInterrupt() as stop:
         for k in range(n):
             if stop.requested:  # Ctrl-C: the ticks done so far make a partial result
@@ -422,14 +430,16 @@ def run_episode(
                 events = source.events_until(t_next, T_shown, T_w_c)
             else:
                 events = source.events_until(t_next, T_shown, T_w_c, occluders=arms.camera_poses(T_w_c))  # type: ignore[call-arg]
-            events = disturb.events(t_us, t_next, events)
+            covered0_us, covered_us = covered_us, getattr(source, "covered_us", t_next)
+            events = disturb.events(covered0_us, covered_us, events)
             n_events += len(events)
             if viewer is not None:
                 # The tick's poses (before the step), with the events simulated over it.
                 T_w_c_k, T_w_o_k = rec["T_w_c"][k], rec["T_w_o"][k]
                 des = hold.T_c_o_des if hold.T_c_o_des is not None else T_c_o0
                 viewer.servo(t_us, events, est, core, T_w_c=T_w_c_k, T_c_o_des=des, T_w_o_true=T_w_o_k)
-            tracker.deliver(t_next + latency_us, events, until_us=t_next)
+            # Nothing new while the source waits for its next render: no batch (not even an empty one).
+            tracker.deliver(t_next + latency_us, events, until_us=covered_us if covered_us > covered0_us else None)
             tracker.advance(t_next)
             if progress is not None and (k + 1) % 100 == 0:
                 progress(100)

@@ -51,8 +51,8 @@ class EpisodeConfig:
     each arm's command link: the UR5e (RTDE) commanded every ``ur_period_s`` with ``ur_latency_s``
     from write to servo, the Panda (FCI) every ``panda_period_s`` with ``panda_latency_s``.
     ``render_arms``: draw the UR5e and the Panda into the rendered event camera too (their moving
-    links occlude the scene and fire events; see :mod:`evservo.sim.arms`); needs ``event_source``
-    ``"render"``.
+    links occlude the scene and fire events; see :mod:`evservo.sim.arms`); needs a rendered
+    ``event_source`` (``"render"``, ``"render-fast"``, ``"render-lab"``).
     Robustness (issue 12; see :mod:`evservo.sim.disturb`): ``occlusions`` full occlusion spells of the
     object; ``noise_s`` a spell of pure noise at ``noise_rate_hz`` (events/s) instead of the scene;
     ``model`` the tracker's model when it is not the object's (a wrong model); ``start_lost`` the

@@ -42,6 +42,11 @@
 //!   rest ([`EventSimulator::step_tiles`]), catching skipped pixels up on leak. The events equal
 //!   the reference path's (`set_sparse(false)`: full frames while the background moves, the
 //!   changed region otherwise) bit for bit without leak, up to f32 rounding with it (tested).
+//! * **Interpolated ticks** ([`SimCamera::advance_ticks`]). One render can stand for several
+//!   sensor steps: the sensor is stepped at each given earlier tick on the intensities
+//!   interpolated linearly in time between the previous render and this one (ESIM's
+//!   interpolation between renders), with the flicker gain of each tick, so the sensor model still
+//!   sees time in ticks while the scene is drawn only when it has moved enough to matter.
 //! * **Occluders.** Further meshes (e.g. the robot arms) set by [`SimCamera::set_occluders`] and
 //!   posed per frame in [`SimCamera::advance_scene`] are rendered with the object into one
 //!   z-tested buffer, shaded like the object. An occluder whose pose changed since the previous
@@ -353,6 +358,12 @@ pub struct SimCamera {
     /// The raw frame times the flicker gain, what the sensor sees when the lighting flickers.
     lit: Vec<f32>,
     raw: Vec<f32>,
+    /// Interpolated frames ([`Self::advance_ticks`]): the raw values of the redrawn tiles before
+    /// the render (elsewhere stale), and the frame of one intermediate tick.
+    before: Vec<f32>,
+    between: Vec<f32>,
+    /// Scratch: the events of one sensor step of a sparse frame.
+    tick_out: EventBatch,
     /// Scratch: the composited canvas region and the raw ROI values.
     canvas_buf: Vec<f32>,
     roi_buf: Vec<f32>,
@@ -430,6 +441,9 @@ impl SimCamera {
             sparse: true,
             raw: vec![0.0; camera.n_pixels()],
             lit: Vec::new(),
+            before: Vec::new(),
+            between: Vec::new(),
+            tick_out: EventBatch::default(),
             camera,
             canvas,
             map,
@@ -613,6 +627,25 @@ impl SimCamera {
         t_c_bg: Option<&Pose>,
         out: &mut EventBatch,
     ) -> Result<FrameInfo> {
+        self.advance_ticks(t_c_o, occluder_poses, (&[], t_us), t_c_bg, out)
+    }
+
+    /// [`Self::advance_scene`] rendering once, at `t_us`, but stepping the sensor at each of the
+    /// earlier `ticks` too (µs, increasing, strictly between the previous frame and `t_us`) on
+    /// the intensities interpolated linearly in time between the previous render and this one
+    /// (ESIM's interpolation between renders, in linear intensity: exact for an edge moving at
+    /// constant speed across a pixel's bilinear ramp). The sensor model then still sees time in
+    /// ticks (the lighting's flicker is sampled at each), while the scene is drawn once. Needs
+    /// sparse frames and a previous frame unless `ticks` is empty. `out` gets every tick's
+    /// events, in time order.
+    pub fn advance_ticks(
+        &mut self,
+        t_c_o: &Pose,
+        occluder_poses: &[Pose],
+        (ticks, t_us): (&[i64], i64),
+        t_c_bg: Option<&Pose>,
+        out: &mut EventBatch,
+    ) -> Result<FrameInfo> {
         let finite = |p: &Pose| {
             p.translation
                 .vector
@@ -655,12 +688,23 @@ impl SimCamera {
                 }
             }
         }
+        ensure(
+            ticks.is_empty() || (self.sparse && self.prev_pose.is_some()),
+            || "interpolated ticks need sparse frames and a previous frame".into(),
+        )?;
+        let after_prev = |t: i64| self.sim.time_us().is_none_or(|p| t > p);
+        ensure(
+            ticks.first().is_none_or(|&t| after_prev(t))
+                && ticks.windows(2).all(|w| w[0] < w[1])
+                && ticks.last().is_none_or(|&t| t < t_us),
+            || "ticks must increase strictly between the previous frame and t_us".into(),
+        )?;
         if let (true, Some(prev)) = (self.sparse, self.prev_pose) {
             let info = self.advance_sparse(
                 (&prev, t_c_o),
                 occluder_poses,
                 (prev_background, moved_background),
-                t_us,
+                (ticks, t_us),
                 out,
             )?;
             self.prev_pose = Some(*t_c_o);
@@ -689,7 +733,8 @@ impl SimCamera {
                     Roi::full(self.canvas.width, self.canvas.height),
                 )?;
                 if self.flickers() {
-                    self.light(t_us);
+                    let gain = self.gain(t_us);
+                    light(&mut self.lit, &self.raw, gain);
                     self.sim.step(&self.lit, t_us, out)?;
                 } else {
                     self.sim.step(&self.raw, t_us, out)?;
@@ -744,7 +789,7 @@ impl SimCamera {
         (prev, cur): (&Pose, &Pose),
         occluder_poses: &[Pose],
         (prev_background, moved_background): (Background, bool),
-        t_us: i64,
+        (ticks, t_us): (&[i64], i64),
         out: &mut EventBatch,
     ) -> Result<FrameInfo> {
         let scene = scene_of(&self.mesh, cur, &self.occluders, occluder_poses);
@@ -832,12 +877,17 @@ impl SimCamera {
         let tx = w.div_ceil(t);
         let (map, boxes) = (&self.map, &self.tile_boxes);
         let background = self.background;
+        let keep_before = !ticks.is_empty();
+        self.before.resize(if keep_before { w * h } else { 0 }, 0.0);
+        let mut before_rows: Vec<&mut [f32]> = self.before.chunks_mut(t * w).collect();
+        before_rows.resize_with(h.div_ceil(t), Default::default);
         self.raw
             .par_chunks_mut(t * w)
+            .zip(before_rows.into_par_iter())
             .zip(self.changed.par_chunks_mut(tx))
             .zip(self.tile_cache.par_chunks_mut(tx))
             .enumerate()
-            .for_each(|(ty, ((rows, changed), cache))| {
+            .for_each(|(ty, (((rows, before), changed), cache))| {
                 for kx in 0..tx {
                     let (true, Some(b)) = (changed[kx], boxes[ty * tx + kx]) else {
                         continue;
@@ -878,6 +928,12 @@ impl SimCamera {
                     let buf = &cache[kx];
                     let (x0, n_rows) = (kx * t, rows.len() / w);
                     let x1 = (x0 + t).min(w);
+                    if keep_before {
+                        for r in 0..n_rows {
+                            let span = r * w + x0..r * w + x1;
+                            before[span.clone()].copy_from_slice(&rows[span]);
+                        }
+                    }
                     for r in 0..n_rows {
                         let y = ty * t + r;
                         let taps = &map[y * w + x0..y * w + x1];
@@ -899,15 +955,22 @@ impl SimCamera {
                 }
             });
         if self.flickers() {
-            // Every lit pixel changes; tiles that see nothing stay dark.
-            for (flag, b) in self.changed.iter_mut().zip(&self.tile_boxes) {
-                *flag = b.is_some();
-            }
-            self.light(t_us);
-            self.sim.step_tiles(&self.lit, &self.changed, t_us, out)?;
+            // Every lit pixel changes, so every tile that sees something is stepped; only the
+            // redrawn ones differ between the two renders and are interpolated.
+            let redrawn = std::mem::take(&mut self.changed);
+            self.changed = self.tile_boxes.iter().map(Option::is_some).collect();
+            self.step_between(&redrawn, (ticks, t_us), out)?;
+            let gain = self.gain(t_us);
+            light(&mut self.lit, &self.raw, gain);
+            self.sim
+                .step_tiles(&self.lit, &self.changed, t_us, &mut self.tick_out)?;
         } else {
-            self.sim.step_tiles(&self.raw, &self.changed, t_us, out)?;
+            let redrawn = self.changed.clone();
+            self.step_between(&redrawn, (ticks, t_us), out)?;
+            self.sim
+                .step_tiles(&self.raw, &self.changed, t_us, &mut self.tick_out)?;
         }
+        out.extend_from(&self.tick_out);
         // Report the box of the redrawn tiles (a 1-pixel region when none was).
         let (mut lo, mut hi) = ((w, h), (0, 0));
         for (k, _) in self.changed.iter().enumerate().filter(|(_, &c)| c) {
@@ -942,14 +1005,61 @@ impl SimCamera {
         p.flicker_hz > 0.0 && p.flicker_depth > 0.0
     }
 
-    /// `lit` = the raw frame under the lighting at `t_us` (the flicker gain).
-    fn light(&mut self, t_us: i64) {
-        let gain = self.sim.params().flicker_gain(t_us) as f32;
-        self.lit.resize(self.raw.len(), 0.0);
-        self.lit
-            .par_chunks_mut(1 << 14)
-            .zip(self.raw.par_chunks(1 << 14))
-            .for_each(|(l, r)| l.iter_mut().zip(r).for_each(|(l, r)| *l = r * gain));
+    /// The lighting's flicker gain at `t_us`.
+    fn gain(&self, t_us: i64) -> f32 {
+        self.sim.params().flicker_gain(t_us) as f32
+    }
+
+    /// Step the sensor at each of `ticks` (before `t_us`, the time of this render) on the frame
+    /// interpolated linearly in time between the previous render (`before`, on the tiles flagged
+    /// in `redrawn`, the only ones whose values changed) and this one (`raw`); `out` (cleared
+    /// first) gets the events.
+    fn step_between(
+        &mut self,
+        redrawn: &[bool],
+        (ticks, t_us): (&[i64], i64),
+        out: &mut EventBatch,
+    ) -> Result<()> {
+        out.clear();
+        let (Some(t_prev), false) = (self.sim.time_us(), ticks.is_empty()) else {
+            return Ok(());
+        };
+        let (w, t) = (self.camera.width as usize, TILE_PX as usize);
+        let tx = w.div_ceil(t);
+        self.between.clear();
+        self.between.extend_from_slice(&self.raw);
+        for &tick in ticks {
+            let s = (tick - t_prev) as f32 / (t_us - t_prev) as f32;
+            self.between
+                .par_chunks_mut(t * w)
+                .zip(self.before.par_chunks(t * w))
+                .zip(self.raw.par_chunks(t * w))
+                .zip(redrawn.par_chunks(tx))
+                .for_each(|(((mid, before), raw), redrawn)| {
+                    let n_rows = mid.len() / w;
+                    for kx in (0..tx).filter(|&kx| redrawn[kx]) {
+                        let (x0, x1) = (kx * t, ((kx + 1) * t).min(w));
+                        for r in 0..n_rows {
+                            let span = r * w + x0..r * w + x1;
+                            let rows = mid[span.clone()].iter_mut().zip(&before[span.clone()]);
+                            for ((m, &b), &a) in rows.zip(&raw[span]) {
+                                *m = b + (a - b) * s;
+                            }
+                        }
+                    }
+                });
+            if self.flickers() {
+                let gain = self.gain(tick);
+                light(&mut self.lit, &self.between, gain);
+                self.sim
+                    .step_tiles(&self.lit, &self.changed, tick, &mut self.tick_out)?;
+            } else {
+                self.sim
+                    .step_tiles(&self.between, &self.changed, tick, &mut self.tick_out)?;
+            }
+            out.extend_from(&self.tick_out);
+        }
+        Ok(())
     }
 
     fn cache_background(&mut self) {
@@ -1142,6 +1252,14 @@ impl SimCamera {
 
 /// Fill `buf` with canvas box `b` composited as in [`SimCamera::render_raw`]: the meshes where
 /// `rendered` has a surface nearer than the background, the background elsewhere.
+/// `lit` = `frame` under the lighting's flicker `gain`.
+fn light(lit: &mut Vec<f32>, frame: &[f32], gain: f32) {
+    lit.resize(frame.len(), 0.0);
+    lit.par_chunks_mut(1 << 14)
+        .zip(frame.par_chunks(1 << 14))
+        .for_each(|(l, r)| l.iter_mut().zip(r).for_each(|(l, r)| *l = r * gain));
+}
+
 fn composite(
     buf: &mut Vec<f32>,
     b: &CanvasBox,
@@ -1690,5 +1808,97 @@ mod tests {
         assert!(sc
             .max_displacement_px(&a, &pose(0.0, -0.1, 0.0))
             .is_infinite());
+    }
+
+    /// The cube moving `dx_m` per 1 ms tick for 60 ticks, rendered every `every` ticks with the
+    /// sensor stepped at each tick in between ([`SimCamera::advance_ticks`]); all events.
+    fn every_few_ticks(params: SimParams, dx_m: f64, every: usize) -> EventBatch {
+        let mesh = Arc::new(test_cube(0.12, Shading::Constant(0.8)));
+        let mut sc = SimCamera::new(
+            small_camera(),
+            mesh,
+            RenderOptions::default(),
+            plane(),
+            params,
+            2,
+        )
+        .unwrap();
+        let at = |t_us: i64| pose(dx_m * (t_us / 1000) as f64, 0.7, 0.0);
+        let (mut all, mut ev) = (EventBatch::default(), EventBatch::default());
+        sc.advance(&at(0), 0, None, &mut ev).unwrap();
+        let ticks: Vec<i64> = (1..=60).map(|k| 1000 * k).collect();
+        for chunk in ticks.chunks(every) {
+            let (&t_us, before) = chunk.split_last().unwrap();
+            sc.advance_ticks(&at(t_us), &[], (before, t_us), None, &mut ev)
+                .unwrap();
+            all.extend_from(&ev);
+        }
+        all
+    }
+
+    fn pixel_counts(ev: &EventBatch) -> Vec<i64> {
+        let w = small_camera().width as usize;
+        let mut n = vec![0; small_camera().n_pixels()];
+        for k in 0..ev.len() {
+            n[ev.y[k] as usize * w + ev.x[k] as usize] += 1;
+        }
+        n
+    }
+
+    #[test]
+    fn ticks_between_renders_step_the_sensor_as_a_render_per_tick_does() {
+        // A still scene under the `lab` preset (flicker, hot pixels, shot noise, leak): frames
+        // interpolated between renders 5 ticks apart equal the renders, so the sensor must see
+        // exactly the steps, flicker samples and noise of a render per tick.
+        let lab = SimParams {
+            seed: 2,
+            ..SimParams::preset("lab").unwrap()
+        };
+        let per_tick = every_few_ticks(lab.clone(), 0.0, 1);
+        assert!(per_tick.len() > 1000, "{} events", per_tick.len());
+        assert_eq!(every_few_ticks(lab, 0.0, 5), per_tick);
+        // The cube moving 0.1 px per tick, noise-free: one render per 5 ticks (half a pixel)
+        // puts the same events on the same pixels, up to the few whose intensity between two
+        // renders is not linear in time (an edge crossing a canvas pixel centre).
+        let clean = SimParams::preset("clean").unwrap();
+        let dx_m = 0.1 * 0.7 / 300.0;
+        let (per_tick, every_5) = (
+            every_few_ticks(clean.clone(), dx_m, 1),
+            every_few_ticks(clean, dx_m, 5),
+        );
+        // ... at the same times: the interpolation moves them within the ticks between renders.
+        let mean_t = |e: &EventBatch| e.t_us.iter().sum::<i64>() as f64 / e.len() as f64;
+        let shift_us = mean_t(&every_5) - mean_t(&per_tick);
+        assert!(shift_us.abs() < 250.0, "mean event time {shift_us} µs off");
+        let (a, b) = (pixel_counts(&per_tick), pixel_counts(&every_5));
+        let total: i64 = a.iter().sum();
+        let l1: i64 = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).sum();
+        assert!(total > 2000, "{total} events");
+        assert!(l1 * 50 < total, "{l1} of {total} events on other pixels");
+        let moved: i64 = b.iter().sum();
+        assert!(
+            (moved - total).abs() * 100 < total,
+            "{moved} vs {total} events"
+        );
+    }
+
+    #[test]
+    fn interpolated_ticks_must_lie_between_frames() {
+        let mut sc = sim_camera(2);
+        let mut ev = EventBatch::default();
+        let p = pose(0.0, 0.7, 0.0);
+        assert!(sc
+            .advance_ticks(&p, &[], (&[500], 1000), None, &mut ev)
+            .is_err());
+        sc.advance(&p, 0, None, &mut ev).unwrap();
+        for bad in [&[0, 500][..], &[600, 500], &[500, 1000]] {
+            assert!(sc
+                .advance_ticks(&p, &[], (bad, 1000), None, &mut ev)
+                .is_err());
+        }
+        sc.set_sparse(false);
+        assert!(sc
+            .advance_ticks(&p, &[], (&[500], 1000), None, &mut ev)
+            .is_err());
     }
 }

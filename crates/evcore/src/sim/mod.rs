@@ -163,7 +163,7 @@ impl EventSimulator {
                     max_leak_hz = max_leak_hz.max(leak_hz);
                     row.c_pos[x] = cp as f32;
                     row.c_neg[x] = cn as f32;
-                    row.leak_per_us[x] = (leak_hz * 1e-6 * f64::from(row.c_pos[x])) as f32;
+                    row.set_leak(x, (leak_hz * 1e-6 * f64::from(row.c_pos[x])) as f32);
                 }
                 if params.hot_pixel_fraction > 0.0 {
                     let mut rng = stream(params.seed, STREAM_HOT, u64::from(y), 0);
@@ -234,7 +234,7 @@ impl EventSimulator {
         self.rows
             .iter()
             .flat_map(|r| {
-                r.leak_per_us
+                r.leak_per_us()
                     .iter()
                     .zip(&r.c_pos)
                     .map(|(&k, &c)| f64::from(k) / f64::from(c) * 1e6)

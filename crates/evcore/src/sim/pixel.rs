@@ -59,8 +59,12 @@ pub(super) struct Row {
     pub last_t_us: Vec<i64>,
     pub c_pos: Vec<f32>,
     pub c_neg: Vec<f32>,
-    /// Leak drift of the reference, log units per microsecond.
-    pub leak_per_us: Vec<f32>,
+    /// Leak drift of the reference, log units per microsecond ([`Self::set_leak`]).
+    leak_per_us: Vec<f32>,
+    /// Its reciprocal, microseconds per log unit (0 without leak): predicting a leak crossing
+    /// for every pixel of every visited segment then multiplies instead of dividing, whose
+    /// latency was a quarter of the sensor step's time.
+    us_per_log_leak: Vec<f64>,
     /// Per [`SEGMENT_PX`] segment: the time its pixels were last brought up to date (µs), and
     /// the earliest time leak alone can make one of them fire (µs, [`NEVER_DUE`] if never).
     pub seg_t_us: Vec<i64>,
@@ -80,6 +84,20 @@ pub(super) fn log_intensity(i: f32, log_eps: f32) -> f32 {
 }
 
 impl Row {
+    /// Set pixel `x`'s leak drift (log units per microsecond, >= 0).
+    pub fn set_leak(&mut self, x: usize, leak_per_us: f32) {
+        self.leak_per_us[x] = leak_per_us;
+        self.us_per_log_leak[x] = if leak_per_us > 0.0 {
+            1.0 / f64::from(leak_per_us)
+        } else {
+            0.0
+        };
+    }
+
+    pub fn leak_per_us(&self) -> &[f32] {
+        &self.leak_per_us
+    }
+
     pub fn new(width: usize) -> Self {
         Self {
             prev_i: vec![0.0; width],
@@ -89,6 +107,7 @@ impl Row {
             c_pos: vec![0.0; width],
             c_neg: vec![0.0; width],
             leak_per_us: vec![0.0; width],
+            us_per_log_leak: vec![0.0; width],
             seg_t_us: vec![0; width.div_ceil(SEGMENT_PX)],
             seg_due_us: vec![NEVER_DUE; width.div_ceil(SEGMENT_PX)],
             hot: Vec::new(),
@@ -327,12 +346,13 @@ impl Row {
 
     /// Earliest time (µs) at which leak alone can make pixel `x`, up to date at `t_us`, fire.
     fn leak_due_us(&self, x: usize, t_us: i64) -> i64 {
-        let leak = f64::from(self.leak_per_us[x]);
-        if leak <= 0.0 {
+        let us_per_log = self.us_per_log_leak[x];
+        if us_per_log <= 0.0 {
             return NEVER_DUE;
         }
         let gap = f64::from(self.c_pos[x]) - (f64::from(self.prev_l[x]) - f64::from(self.ref_l[x]));
-        let wait = (gap - DUE_SLACK_LOG) / leak;
+        // Within a few ulps of the quotient: nothing beside the slack, worth DUE_SLACK_LOG / leak µs.
+        let wait = (gap - DUE_SLACK_LOG) * us_per_log;
         // The cast truncates, which is ⌊wait⌋ once negatives (and NaN) are lifted to 0: no libm
         // `floor` call (without SSE4.1) for every pixel of every visited segment. Saturating: a
         // far-off crossing becomes "never" in practice.

@@ -641,6 +641,33 @@ pub(crate) mod testing {
         (points, visible)
     }
 
+    /// The fixture of the eight-at-a-time equivalence tests: the box's visible points at a pose
+    /// near 0.6 m, truncated to whole chunks of eight plus a tail of five, and a distance field
+    /// over a roi covering only the left part of the projected box, built from a random mask
+    /// (one pixel in `one_in` set, seeded by `seed`) so that chunks fall inside, across and off it.
+    pub fn partial_field(
+        seed: u64,
+        one_in: u64,
+    ) -> (Pose, Vec<[f32; 3]>, crate::field::DistanceField) {
+        let truth = Pose::new(Vector3::new(0.01, 0.02, 0.6), Vector3::new(0.3, 0.4, 0.1));
+        let (mut points, _) = visible_box_model(&truth);
+        points.truncate(points.len() / 8 * 8 + 5);
+        let roi = crate::image::Roi {
+            x0: 420,
+            y0: 150,
+            width: 260,
+            height: 420,
+        };
+        let mut rng = crate::rng::Rng::new(seed);
+        let mask: Vec<u8> = (0..roi.area())
+            .map(|_| u8::from(rng.below(one_in) == 0))
+            .collect();
+        let mut field =
+            crate::field::DistanceField::new(crate::field::FieldParams::default()).expect("field");
+        field.build(&mask, roi, 1).expect("build");
+        (truth, points, field)
+    }
+
     /// The segment map of the box's visible edges seen at `pose` through `pin`.
     pub fn box_map(pin: &Pinhole, pose: &Pose, tau: f32) -> SegmentMap {
         let (_, edges) = visible_box_model(pose);
@@ -657,6 +684,21 @@ pub(crate) mod testing {
 mod tests {
     use super::*;
     use nalgebra::{Isometry3, Point3};
+
+    /// A 1280 × 720 camera with strong pincushion distortion (k1 = 0.3): the rectified image's
+    /// corners fall off the sensor, so its view mask has holes.
+    fn pincushion() -> Camera {
+        Camera::new(
+            1280,
+            720,
+            1100.0,
+            1100.0,
+            640.0,
+            360.0,
+            [0.3, 0.0, 0.0, 0.0, 0.0],
+        )
+        .unwrap()
+    }
 
     #[test]
     fn analytic_jacobian_matches_finite_differences() {
@@ -700,16 +742,7 @@ mod tests {
         assert!(!mask.contains(-5.0, 360.0) && !mask.contains(640.0, 1e6));
         // Pincushion distortion (k1 > 0) pushes the rectified corners off the sensor: they see
         // nothing, while the undistorted sensor sees them.
-        let pincushion = Camera::new(
-            1280,
-            720,
-            1100.0,
-            1100.0,
-            640.0,
-            360.0,
-            [0.3, 0.0, 0.0, 0.0, 0.0],
-        )
-        .unwrap();
+        let pincushion = pincushion();
         assert!(!ViewMask::new(&pincushion, 2.0).contains(10.0, 10.0));
         assert!(ViewMask::new(&pincushion, 2.0).contains(640.0, 30.0));
         assert!(ViewMask::new(&pincushion.rectified(), 2.0).contains(10.0, 10.0));
@@ -747,16 +780,7 @@ mod tests {
     /// holes, points behind the camera, and the tail after the last chunk of eight.
     #[test]
     fn visible_points_eight_at_a_time_match_one_at_a_time() {
-        let pincushion = Camera::new(
-            1280,
-            720,
-            1100.0,
-            1100.0,
-            640.0,
-            360.0,
-            [0.3, 0.0, 0.0, 0.0, 0.0],
-        )
-        .unwrap();
+        let pincushion = pincushion();
         let mask = ViewMask::new(&pincushion, 2.0);
         let check = |pin: &Pinhole, pose: &Rigid32, points: &[[f32; 3]]| {
             let (mut one, mut wide) = (Vec::new(), Vec::new());

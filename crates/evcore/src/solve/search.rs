@@ -585,23 +585,7 @@ mod tests {
     #[test]
     fn eight_points_at_a_time_match_one_at_a_time() {
         let pin = Pinhole::at_level(&Camera::imx636(), 0);
-        let truth = Isometry3::new(Vector3::new(0.01, 0.02, 0.6), Vector3::new(0.3, 0.4, 0.1));
-        let (mut points, _) = testing::visible_box_model(&truth);
-        points.truncate(points.len() / 8 * 8 + 5);
-        // The roi covers the left part of the projected box only.
-        let roi = crate::image::Roi {
-            x0: 420,
-            y0: 150,
-            width: 260,
-            height: 420,
-        };
-        let mut rng = crate::rng::Rng::new(5);
-        let mask: Vec<u8> = (0..roi.area())
-            .map(|_| u8::from(rng.below(30) == 0))
-            .collect();
-        let mut field =
-            crate::field::DistanceField::new(crate::field::FieldParams::default()).expect("field");
-        field.build(&mask, roi, 1).expect("build");
+        let (truth, points, field) = testing::partial_field(5, 30);
         let map = field.level(0);
         let pivot = centroid(&points);
         let (mut vector_chunks, mut fallback_chunks) = (0, 0);

@@ -7,40 +7,29 @@
 //! flushes its stale centre events. Nothing depends on time: a region keeps its last N events
 //! however old they are, which is what makes the active set independent of the object's speed.
 //!
-//! Storage and order of work differ from the C++ in four ways, none visible in the result:
-//! - activity is a per-pixel u8 count of centre entries (active = count > 0) instead of a float
-//!   image updated by ±C, so no residue can build up; a pixel's count is at most N, so N ≤ 255
-//!   keeps it from ever wrapping;
-//! - a ring entry is the block-local index (row · block width + column) of a centre event, or the
-//!   spare value `block area` for a surround event: one byte while the block area is at most 255
-//!   (the default 14 px block: 196), two otherwise. The spare value maps to a spare cell of the
-//!   block, past the count image, that absorbs the unconditional ±1 updates, so the hot loop has no
-//!   "is this a centre entry" branch (a select between one shared spare cell and origin + offset
-//!   compiled to one, taken at random on noise). One spare cell per block rather than one for
-//!   all: most evictions are surround entries, and a single shared cell chained every event's
-//!   three or so read-modify-writes into one dependency through memory. Block-local entries and u8
-//!   counts keep the rings and the count image at ≈ 1.4 MB at 1280×720 with 14 px blocks (1.9 MB
-//!   with two-byte entries, 3.8 MB with u32 pixel indices and u16 counts), which is what a stream
-//!   spread over the whole sensor (a textured background) misses the cache on;
-//! - a missing neighbour block points at a dummy block whose ring only ever holds the spare value,
-//!   so every event does exactly four ring updates and the loop has no "is there a block" branch;
-//! - a batch is first walked newest event first to find, per block, the entries of its newest N
-//!   events; an older entry would be evicted from that block's FIFO within the same batch, so it
-//!   is not applied at all. A block's FIFO and its pixels' counts depend only on the block's own
-//!   entries in order (a count is the number of the pixel's centre entries in its own block's
-//!   FIFO), so dropping entries that a block would evict anyway changes nothing once the batch is
-//!   done. The walk reads only a byte per block (a few KiB); the update then runs, oldest first,
-//!   over the events that still feed some block, with their other entries sent to a scratch
-//!   block. A stream that keeps hitting the same blocks (an object's edges) thus costs the update
-//!   only about N events per block and batch.
+//! Storage differs from the C++ in three ways, none visible in the active set:
+//! - a pixel is active exactly while its newest centre entry is among the newest N entries of its
+//!   block's FIFO, so the FIFO itself is never stored. Each block keeps its *sequence*, the number
+//!   of entries it has received, and each pixel the sequence its block had at the pixel's newest
+//!   centre entry: the pixel is active iff the block's sequence minus the pixel's is below N. An
+//!   event thus costs four counter increments (a few KiB of counters, in L1) and one store into
+//!   the pixel image, and nothing is evicted. The C++'s float image updated by ±C, and this
+//!   crate's earlier per-block rings with per-pixel counts, read back every evicted entry and
+//!   updated its pixel: four dependent loads per event, the cache misses that bounded ingest.
+//! - sequences are u16 and a difference is taken modulo 2^16. A pixel left inactive for 2^16 of
+//!   its block's entries would alias back into the window, so whenever a block's sequence passes
+//!   a multiple of [`SWEEP_PERIOD`] its inactive pixels are set exactly N behind; between two such
+//!   sweeps no difference can grow past N + SWEEP_PERIOD < 2^16, so every difference is exact
+//!   where it matters (below N or not);
+//! - a missing neighbour block is a pad block that counts entries like any other but has no
+//!   pixels, so every event does exactly four increments and the loop has no "is there a block"
+//!   branch.
 //!
-//! Concurrency: one [`ScarfWriter`] owns the rings, the per-batch tallies and the connection
-//! table; any number of
-//! [`ScarfReader`] handles share only the count image (relaxed `AtomicU8`) and the active-pixel
-//! total. Relaxed loads and stores of byte cells compile to plain moves on x86-64 and AArch64, so
-//! the writer pays nothing for being observable.
+//! Concurrency: one [`ScarfWriter`] updates the sequences; any number of [`ScarfReader`] handles
+//! read them (relaxed atomics, which compile to plain moves on x86-64 and AArch64, so the writer
+//! pays nothing for being observable).
 
-use std::sync::atomic::{AtomicU8, AtomicUsize, Ordering::Relaxed};
+use std::sync::atomic::{AtomicU16, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
 
 use super::{check_grid, fill_roi, EventSurface};
@@ -63,8 +52,9 @@ pub struct ScarfGeometry {
 impl ScarfGeometry {
     /// Odd `block_px` is raised by one; the grid drops one block's worth of border; block dims are
     /// rounded down to even; N = ⌊block_w·block_h·alpha/2⌋. `alpha` must lie in (0, 8] (8 makes
-    /// the FIFO as long as the whole 2×2-block window); N must fit the u8 count image (≤ 255) and
-    /// the block area the u16 ring entries (< 65535).
+    /// the FIFO as long as the whole 2×2-block window); N ≤ 255 and a block area below 65535.
+    /// The sequences below need only N + 2^15 < 2^16; the tighter bounds are those of the earlier
+    /// u8 counts and u16 ring entries, kept so that the accepted parameters do not change.
     pub fn new(width: u32, height: u32, block_px: u32, alpha: f32) -> Result<Self> {
         check_grid(width, height)?;
         ensure(alpha.is_finite() && alpha > 0.0 && alpha <= 8.0, || {
@@ -163,175 +153,97 @@ impl RowOf {
 }
 
 /// Per row or column: the padded-grid offsets of the own and the side block along that axis
-/// (rows pre-multiplied by the padded grid width), the coordinate's offset inside its own block
-/// (rows pre-multiplied by the block width), and whether the own block is a real one.
+/// (rows pre-multiplied by the padded grid width), and whether the own block is a real one.
 #[derive(Debug, Clone, Copy)]
 struct AxisEntry {
     own: u32,
     side: u32,
-    local: u32,
     real: bool,
 }
 
 /// Axis table for coordinates 0..len; `pad` is the lowest block index any coordinate reaches (−1),
-/// `scale` the stride of one step along this axis in the padded grid, `local_scale` that of one
-/// step inside a block's local index.
-fn axis_table(
-    len: u32,
-    block: u32,
-    grid: u32,
-    pad: i64,
-    scale: u32,
-    local_scale: u32,
-) -> Box<[AxisEntry]> {
+/// `scale` the stride of one step along this axis in the padded grid.
+fn axis_table(len: u32, block: u32, grid: u32, pad: i64, scale: u32) -> Box<[AxisEntry]> {
     (0..len)
         .map(|c| {
             let (own, side) = axis(c, block);
-            let real = (0..i64::from(grid)).contains(&own);
-            let local = if real {
-                (i64::from(c) - i64::from(block / 2) - own * i64::from(block)) as u32 * local_scale
-            } else {
-                0
-            };
             AxisEntry {
                 own: (own - pad) as u32 * scale,
                 side: (side - pad) as u32 * scale,
-                local,
-                real,
+                real: (0..i64::from(grid)).contains(&own),
             }
         })
         .collect()
 }
 
-/// What readers see: the count image and the total. The cells past width·height are the writer's
-/// spare cells (one per padded block), never read.
+/// A block's sequence passing a multiple of this sets its inactive pixels exactly N behind (see
+/// the module notes). With N ≤ 255, N + SWEEP_PERIOD < 2^16; a sweep touches one block's pixels
+/// once per 32768 of its entries, too rarely to show in the cost per event.
+const SWEEP_PERIOD: u16 = 1 << 15;
+
+/// What the writer and the readers share. Blocks live on a padded grid with an extra ring of pad
+/// blocks wherever a pixel's neighbour would fall outside the real grid; the block of a pixel is
+/// `rows[y].own + cols[x].own` etc., so the lookup tables are per row and per column (a few KiB,
+/// always in L1) instead of per pixel.
 #[derive(Debug)]
 struct Shared {
     width: u32,
     height: u32,
-    counts: Box<[AtomicU8]>,
-    active: AtomicUsize,
+    /// FIFO length N.
+    fifo_len: u16,
+    row_of: RowOf,
+    cols: Box<[AxisEntry]>,
+    rows: Box<[AxisEntry]>,
+    /// Per padded block: how many entries it has received, modulo 2^16.
+    seqs: Box<[AtomicU16]>,
+    /// Per pixel: its block's sequence at the pixel's newest centre entry; four pixels per word
+    /// (pixel 4i + k in bits 16k..16k + 16) so that a reader copies a row a word at a time.
+    /// The lanes of pixels outside every real block hold their pad block's sequence, never read.
+    last: Box<[AtomicU64]>,
+}
+
+impl Shared {
+    /// Pixel `p`'s stored sequence.
+    fn last_of(&self, p: usize) -> u16 {
+        (self.last[p / 4].load(Relaxed) >> (16 * (p % 4))) as u16
+    }
+}
+
+/// Store `seq` as pixel `p`'s sequence in `last` (see [`Shared::last`]). Only the writer stores,
+/// so a relaxed load and store of the word cannot lose another pixel's update.
+#[inline(always)]
+fn set_last(last: &[AtomicU64], p: usize, seq: u16) {
+    let word = &last[p / 4];
+    let shift = 16 * (p % 4);
+    let old = word.load(Relaxed);
+    word.store(old & !(0xffff << shift) | u64::from(seq) << shift, Relaxed);
+}
+
+impl Shared {
+    /// Whether pixel `p` = (x, y) is active: its block's sequence is less than N past its own.
+    fn is_active(&self, p: usize, x: u32, y: u32) -> bool {
+        let (c, r) = (&self.cols[x as usize], &self.rows[y as usize]);
+        let seq = self.seqs[(r.own + c.own) as usize].load(Relaxed);
+        c.real && r.real && seq.wrapping_sub(self.last_of(p)) < self.fifo_len
+    }
 }
 
 /// The single writer: ingests events. Not `Clone`, so there is exactly one per SCARF.
-///
-/// Blocks live on a padded grid with an extra ring of blocks wherever a pixel's neighbour would
-/// fall outside the real grid. Those pad blocks have no centre pixels, so their FIFOs only ever
-/// hold the spare index; writing to them is cheaper than branching around them. The block of a
-/// pixel is `rows[y].own + cols[x].own` etc., so the lookup tables are per row and per column
-/// (a few KiB, always in L1) instead of 16 bytes per pixel (15 MB at 1280×720, missed on every
-/// noise event).
 #[derive(Debug)]
 pub struct ScarfWriter {
     shared: Arc<Shared>,
     geometry: ScarfGeometry,
-    layout: Layout,
-    /// Per padded block: where its ring is, the slot written last and its count cells.
-    blocks: Box<[Block]>,
-    /// Per padded block, N entries: a centre event's block-local index or the spare value.
-    rings: Rings,
-    /// Per padded block: how many of the current batch's newest entries it keeps (at most N);
-    /// all 0 between batches.
-    kept: Box<[u8]>,
-    /// The batch's events that feed at least one block, oldest first: pixel | feeds << 28.
-    survivors: Vec<u32>,
-    /// Whether the newest-first walk ran on the last batch and paid for itself; see [`WALK_RETRY`].
-    walk_pays: bool,
-    /// Batches since the walk last ran.
-    since_walk: u32,
-    /// Writer-side copy of the active-pixel total, published after each batch.
-    active: usize,
-}
-
-/// The writer's fixed lookup tables: where an event's four blocks and their count cells are.
-#[derive(Debug)]
-struct Layout {
-    /// Pixels in the count image; spare cells follow.
-    n_pixels: u32,
-    /// FIFO length N.
-    fifo_len: usize,
-    row_of: RowOf,
-    cols: Box<[AxisEntry]>,
-    rows: Box<[AxisEntry]>,
-    /// Pixel offset from a block's top-left pixel of each block-local index, then 0 for the spare
-    /// value (whose base is the spare cell itself).
-    local_offsets: Box<[u32]>,
-    /// The first of four scratch blocks (after the padded grid), one per entry of an event, that
-    /// take the entries a block does not keep: like pad blocks, their rings only ever hold the
-    /// spare value. One per entry, so that an event's evictions from them (spare cell updates)
-    /// do not chain through one cell.
-    scratch: u32,
-}
-
-/// The newest-first walk costs about a third of the update it saves (thread CPU, 29k events of a
-/// box's outline, every event kept: 1.30× the update alone). It runs while it drops at least a
-/// third of a batch's events, and otherwise is retried every this many batches, so a stream whose
-/// blocks stop filling within a batch pays for it rarely and one that starts to again is noticed.
-const WALK_RETRY: u32 = 16;
-
-/// A survivor's pixel index takes the low 28 bits (a grid within 16384² has fewer pixels than
-/// 2^28); which of its four entries are kept, the high four.
-const FEEDS_SHIFT: u32 = 28;
-
-/// One padded block's ring state and count cells, together so that an update reads one 16-byte
-/// record (and no ring index is multiplied out) rather than three arrays.
-#[derive(Debug, Clone, Copy)]
-struct Block {
-    /// Ring index of the slot written last, in start..start + N.
-    last: u32,
-    /// Ring index of the block's first slot.
-    start: u32,
-    /// The count cell a ring entry's offset starts from: [the pixel index of the block's top-left
-    /// pixel (0 for pad blocks, whose rings only hold the spare value), the block's spare cell],
-    /// indexed by "the entry is the spare value".
-    cells: [u32; 2],
-}
-
-/// A ring entry: a centre event's block-local index, or the spare value (the block area).
-trait Entry: Copy + Eq {
-    /// `local` ≤ block area, which the width was chosen to hold.
-    fn new(local: u32) -> Self;
-    fn index(self) -> usize;
-}
-
-impl Entry for u8 {
-    #[inline(always)]
-    fn new(local: u32) -> Self {
-        local as u8
-    }
-    #[inline(always)]
-    fn index(self) -> usize {
-        usize::from(self)
-    }
-}
-
-impl Entry for u16 {
-    #[inline(always)]
-    fn new(local: u32) -> Self {
-        local as u16
-    }
-    #[inline(always)]
-    fn index(self) -> usize {
-        usize::from(self)
-    }
-}
-
-/// The rings in the narrowest entry that holds the spare value: a byte per entry up to a block
-/// area of 255 (the default 14 px block: 196), halving the rings' footprint.
-#[derive(Debug)]
-enum Rings {
-    Narrow(Box<[u8]>),
-    Wide(Box<[u16]>),
+    /// Blocks across the padded grid (the real grid plus one pad block on each side).
+    padded_w: u32,
 }
 
 /// A cheap, cloneable read handle; safe to use from any thread while the writer runs.
 ///
-/// Reads are not synchronised with the writer, so a reader may see a batch half applied, or one
-/// pixel between the eviction and the insertion of the same event (a count one below for a
-/// moment). Mid-batch, a block has stepped only through the entries that survive the batch, so a
-/// count read then is one the pixel would have had without the batch's older events; when the
-/// batch completes every count is exact. A mask is thus at worst one batch stale at a few pixels;
-/// the tracker treats it as a noisy sample anyway.
+/// Reads are not synchronised with the writer. A mask taken while a batch is being applied reads
+/// a band of rows' block sequences before their pixels, so it mixes the two moments: a pixel whose
+/// centre entry lands in between reads inactive, one whose block moved on in between reads as of
+/// the earlier moment. When the batch completes every pixel is exact. A mask is thus at worst one
+/// batch stale at a few pixels; the tracker treats it as a noisy sample anyway.
 #[derive(Debug, Clone)]
 pub struct ScarfReader {
     shared: Arc<Shared>,
@@ -354,67 +266,29 @@ impl Scarf {
             span(width, geometry.block_w),
             span(height, geometry.block_h),
         );
-        // Four more blocks than the padded grid: the scratch blocks.
-        let n_padded = (padded_w * padded_h) as usize + 4;
-        let ring_words = n_padded * geometry.fifo_len as usize;
-        ensure(u32::try_from(ring_words).is_ok(), || {
-            format!("SCARF rings of {ring_words} words exceed u32 offsets")
-        })?;
-        let (bw, bh) = (geometry.block_w, geometry.block_h);
-        let cols = axis_table(width, bw, geometry.grid_w, -1, 1, 1);
-        let rows = axis_table(height, bh, geometry.grid_h, -1, padded_w as u32, bw);
-        // Spare cells follow the count image, one per padded block: n_pixels + n_padded cells, far
-        // below u32::MAX for a grid within 16384².
-        let n = geometry.fifo_len;
-        let mut blocks: Vec<Block> = (0..n_padded)
-            .map(|b| Block {
-                last: b as u32 * n,
-                start: b as u32 * n,
-                cells: [0, (n_pixels + b) as u32],
-            })
-            .collect();
-        for by in 0..geometry.grid_h {
-            for bx in 0..geometry.grid_w {
-                let b = (by + 1) as usize * padded_w as usize + (bx + 1) as usize;
-                blocks[b].cells[0] = (bh / 2 + by * bh) * width + bw / 2 + bx * bw;
-            }
-        }
-        let area = bw * bh;
-        let local_offsets = (0..area)
-            .map(|l| l / bw * width + l % bw)
-            .chain([0])
-            .collect();
-        let rings = if area <= u32::from(u8::MAX) {
-            Rings::Narrow(vec![0; ring_words].into_boxed_slice())
-        } else {
-            Rings::Wide(vec![0; ring_words].into_boxed_slice())
-        };
-        let counts = (0..n_pixels + n_padded).map(|_| AtomicU8::new(0)).collect();
+        let n_padded = (padded_w * padded_h) as usize;
         let shared = Arc::new(Shared {
             width,
             height,
-            counts,
-            active: AtomicUsize::new(0),
+            fifo_len: geometry.fifo_len as u16,
+            row_of: RowOf::new(width),
+            cols: axis_table(width, geometry.block_w, geometry.grid_w, -1, 1),
+            rows: axis_table(
+                height,
+                geometry.block_h,
+                geometry.grid_h,
+                -1,
+                padded_w as u32,
+            ),
+            seqs: (0..n_padded).map(|_| AtomicU16::new(0)).collect(),
+            last: (0..n_pixels.div_ceil(4))
+                .map(|_| AtomicU64::new(0))
+                .collect(),
         });
         let mut writer = ScarfWriter {
             shared: Arc::clone(&shared),
             geometry,
-            layout: Layout {
-                n_pixels: n_pixels as u32,
-                fifo_len: geometry.fifo_len as usize,
-                scratch: n_padded as u32 - 4,
-                row_of: RowOf::new(width),
-                cols,
-                rows,
-                local_offsets,
-            },
-            blocks: blocks.into_boxed_slice(),
-            rings,
-            kept: vec![0; n_padded].into_boxed_slice(),
-            survivors: Vec::new(),
-            walk_pays: true,
-            since_walk: 0,
-            active: 0,
+            padded_w: padded_w as u32,
         };
         writer.reset();
         Ok(Self {
@@ -442,67 +316,7 @@ impl Scarf {
     }
 }
 
-impl ScarfWriter {
-    /// Ingest events at rectified pixel indices; indices ≥ width·height are skipped.
-    pub fn ingest(&mut self, pixels: &[u32]) {
-        let (layout, blocks, counts) = (&self.layout, &mut *self.blocks, &*self.shared.counts);
-        let kept = &mut *self.kept;
-        self.active = if self.walk_pays || self.since_walk >= WALK_RETRY {
-            layout.select(pixels, kept, &mut self.survivors);
-            self.walk_pays = 3 * self.survivors.len() <= 2 * pixels.len();
-            self.since_walk = 0;
-            let survivors = &*self.survivors;
-            match &mut self.rings {
-                Rings::Narrow(rings) => {
-                    layout.ingest::<_, true>(survivors, kept, blocks, rings, counts, self.active)
-                }
-                Rings::Wide(rings) => {
-                    layout.ingest::<_, true>(survivors, kept, blocks, rings, counts, self.active)
-                }
-            }
-        } else {
-            self.since_walk += 1;
-            match &mut self.rings {
-                Rings::Narrow(rings) => {
-                    layout.ingest::<_, false>(pixels, kept, blocks, rings, counts, self.active)
-                }
-                Rings::Wide(rings) => {
-                    layout.ingest::<_, false>(pixels, kept, blocks, rings, counts, self.active)
-                }
-            }
-        };
-        self.shared.active.store(self.active, Relaxed);
-    }
-
-    /// Empty every FIFO and the count image.
-    pub fn reset(&mut self) {
-        let spare = self.layout.local_offsets.len() as u32 - 1;
-        match &mut self.rings {
-            Rings::Narrow(rings) => rings.fill(Entry::new(spare)),
-            Rings::Wide(rings) => rings.fill(Entry::new(spare)),
-        }
-        for b in self.blocks.iter_mut() {
-            b.last = b.start;
-        }
-        for c in self.shared.counts.iter() {
-            c.store(0, Relaxed);
-        }
-        self.active = 0;
-        self.shared.active.store(0, Relaxed);
-    }
-
-    pub fn geometry(&self) -> ScarfGeometry {
-        self.geometry
-    }
-
-    pub fn reader(&self) -> ScarfReader {
-        ScarfReader {
-            shared: Arc::clone(&self.shared),
-        }
-    }
-}
-
-/// How far ahead of the event being inserted its count cell is prefetched, in events.
+/// How far ahead of the event being inserted its pixel's word is prefetched, in events.
 const PREFETCH_EVENTS: usize = 16;
 
 /// Hint that `at` will be read soon; never faults, so any address (even past the end) is fine.
@@ -517,138 +331,102 @@ fn prefetch<T>(at: *const T) {
     let _ = at;
 }
 
-impl Layout {
-    /// (x, y) of pixel `p` < width·height and its two axis entries.
-    #[inline(always)]
-    fn axes(&self, p: u32) -> (&AxisEntry, &AxisEntry) {
-        let (x, y) = self.row_of.split(p);
-        // SAFETY: p < width·height, so x < width = cols.len() and y < height = rows.len().
-        unsafe {
-            (
-                self.cols.get_unchecked(x as usize),
-                self.rows.get_unchecked(y as usize),
-            )
-        }
-    }
-
-    /// Walk the batch newest first and keep, per block, the entries of its newest N events
-    /// (`kept` counts them); collect the events with at least one kept entry, oldest first.
-    fn select(&self, pixels: &[u32], kept: &mut [u8], survivors: &mut Vec<u32>) {
-        survivors.clear();
-        let n = self.fifo_len as u32;
-        for &p in pixels.iter().rev() {
-            if p >= self.n_pixels {
+impl ScarfWriter {
+    /// Ingest events at rectified pixel indices; indices ≥ width·height are skipped.
+    pub fn ingest(&mut self, pixels: &[u32]) {
+        let s = &*self.shared;
+        // Slices and fields in locals: behind `s`, the compiler reloads them after every atomic
+        // store, as it cannot tell the store does not change them.
+        let (cols, rows, seqs, row_of) = (&*s.cols, &*s.rows, &*s.seqs, s.row_of);
+        let last = &*s.last;
+        let n_pixels = s.width * s.height;
+        for (i, &p) in pixels.iter().enumerate() {
+            // A noise event's pixel word is a cache miss; asking for it a few events ahead lets
+            // the miss overlap the work in between.
+            if let Some(&ahead) = pixels.get(i + PREFETCH_EVENTS) {
+                prefetch(last.as_ptr().wrapping_add(ahead as usize / 4));
+            }
+            if p >= n_pixels {
                 continue;
             }
-            let (c, r) = self.axes(p);
+            let (x, y) = row_of.split(p);
+            // SAFETY: p < width·height, so x < width = cols.len() and y < height = rows.len().
+            let (c, r) = unsafe {
+                (
+                    cols.get_unchecked(x as usize),
+                    rows.get_unchecked(y as usize),
+                )
+            };
             let fed = [
                 r.own + c.own,
                 r.side + c.own,
                 r.own + c.side,
                 r.side + c.side,
             ];
-            let mut feeds = 0;
+            let mut own_seq = 0;
             for (k, b) in fed.into_iter().enumerate() {
                 // SAFETY: the axis tables only hold indices inside the padded grid.
-                let count = unsafe { kept.get_unchecked_mut(b as usize) };
-                // Stored unconditionally: a branch here is taken at random where blocks fill up.
-                let keep = u32::from(*count) < n;
-                *count += u8::from(keep);
-                feeds |= u32::from(keep) << k;
+                let seq = unsafe { seqs.get_unchecked(b as usize) };
+                let v = seq.load(Relaxed).wrapping_add(1);
+                seq.store(v, Relaxed);
+                if v % SWEEP_PERIOD == 0 {
+                    self.sweep(b, v);
+                }
+                if k == 0 {
+                    own_seq = v;
+                }
             }
-            if feeds != 0 {
-                survivors.push(p | feeds << FEEDS_SHIFT);
-            }
+            // Stored for a pixel outside every real block too (its own block is a pad block):
+            // readers never look at those lanes, and the loop saves the test.
+            set_last(last, p as usize, own_seq);
         }
-        survivors.reverse();
     }
 
-    /// The insert loop for one ring entry width, oldest first: over the survivors of `select` if
-    /// SELECTED (a kept entry to its block, the others to a scratch block; clears `kept`), else
-    /// over the raw pixels (every entry to its block, indices past the grid skipped). Returns the
-    /// new active-pixel total.
-    #[inline(always)]
-    fn ingest<E: Entry, const SELECTED: bool>(
-        &self,
-        events: &[u32],
-        kept: &mut [u8],
-        blocks: &mut [Block],
-        rings: &mut [E],
-        counts: &[AtomicU8],
-        mut active: usize,
-    ) -> usize {
-        let (n_pixels, n, scratch) = (self.n_pixels, self.fifo_len as u32, self.scratch);
-        let spare_local = self.local_offsets.len() as u32 - 1;
-        let spare_entry = E::new(spare_local);
-        let offsets = &*self.local_offsets;
-        let pixel_mask = (1 << FEEDS_SHIFT) - 1;
-        for (i, &s) in events.iter().enumerate() {
-            // A noise event's count cell is a cache miss; asking for it a few events ahead lets
-            // the miss overlap the work in between.
-            if let Some(&ahead) = events.get(i + PREFETCH_EVENTS) {
-                prefetch(counts.as_ptr().wrapping_add((ahead & pixel_mask) as usize));
-            }
-            let (p, feeds) = if SELECTED {
-                (s & pixel_mask, s >> FEEDS_SHIFT)
-            } else if s < n_pixels {
-                (s, 0b1111)
-            } else {
-                continue;
-            };
-            let (c, r) = self.axes(p);
-            // `&`, not `&&`: one test of both flags instead of two branches. The own block's entry
-            // counts only where that block keeps it.
-            let real = c.real & r.real & (feeds & 1 != 0);
-            let own = r.own + c.own;
-            // A pixel outside every real block, or whose own block does not keep its entry, feeds
-            // its own block's spare cell.
-            let (centre, centre_entry) = if real {
-                (p, E::new(r.local + c.local))
-            } else {
-                (n_pixels + own, spare_entry)
-            };
-            let fed = [own, r.side + c.own, r.own + c.side, r.side + c.side];
-            for (k, b) in fed.into_iter().enumerate() {
-                let b = if feeds >> k & 1 != 0 {
-                    b
-                } else {
-                    scratch + k as u32
-                };
-                if SELECTED {
-                    // SAFETY: b is a padded block or a scratch block, all inside `kept`.
-                    unsafe { *kept.get_unchecked_mut(b as usize) = 0 };
-                }
-                // SAFETY: the axis tables only hold indices inside the padded grid, which with
-                // the scratch blocks has blocks.len() blocks of n ring entries each; `last` stays
-                // in start..start + n.
-                let block = unsafe { blocks.get_unchecked_mut(b as usize) };
-                let next = block.last + 1;
-                block.last = if next == block.start + n {
-                    block.start
-                } else {
-                    next
-                };
-                let entry = unsafe { rings.get_unchecked_mut(block.last as usize) };
-                let old = std::mem::replace(entry, if k == 0 { centre_entry } else { spare_entry });
-                let surround = old == spare_entry;
-                // SAFETY: a ring entry is a local index < block area (only ever written into a
-                // real block's ring, whose origin plus offset is a pixel of that block) or the
-                // spare value, whose base is the block's spare cell and offset 0; counts holds
-                // n_pixels + one spare cell per padded block.
-                let cell = block.cells[usize::from(surround)]
-                    + unsafe { offsets.get_unchecked(old.index()) };
-                let cell = unsafe { counts.get_unchecked(cell as usize) };
-                let v = cell.load(Relaxed).wrapping_sub(1);
-                cell.store(v, Relaxed);
-                active -= usize::from(v == 0 && !surround);
-            }
-            // SAFETY: centre is a pixel index or the own block's spare cell.
-            let cell = unsafe { counts.get_unchecked(centre as usize) };
-            let v = cell.load(Relaxed);
-            cell.store(v.wrapping_add(1), Relaxed);
-            active += usize::from(v == 0 && real);
+    /// Set every inactive pixel of padded block `b` (none for a pad block) exactly N behind its
+    /// sequence `seq`, so that its difference cannot wrap before the next sweep.
+    #[cold]
+    #[inline(never)]
+    fn sweep(&self, b: u32, seq: u16) {
+        let (s, g) = (&*self.shared, &self.geometry);
+        let (bx, by) = (b % self.padded_w, b / self.padded_w);
+        if !(1..=g.grid_w).contains(&bx) || !(1..=g.grid_h).contains(&by) {
+            return;
         }
-        active
+        let (x0, y0) = (
+            g.block_w / 2 + (bx - 1) * g.block_w,
+            g.block_h / 2 + (by - 1) * g.block_h,
+        );
+        for y in y0..y0 + g.block_h {
+            for x in x0..x0 + g.block_w {
+                let p = (y * s.width + x) as usize;
+                if seq.wrapping_sub(s.last_of(p)) >= s.fifo_len {
+                    set_last(&s.last, p, seq.wrapping_sub(s.fifo_len));
+                }
+            }
+        }
+    }
+
+    /// Empty every FIFO: all sequences 0, every pixel N behind.
+    pub fn reset(&mut self) {
+        let s = &*self.shared;
+        for seq in s.seqs.iter() {
+            seq.store(0, Relaxed);
+        }
+        let behind = u64::from(0u16.wrapping_sub(s.fifo_len));
+        let word = behind * 0x0001_0001_0001_0001;
+        for w in s.last.iter() {
+            w.store(word, Relaxed);
+        }
+    }
+
+    pub fn geometry(&self) -> ScarfGeometry {
+        self.geometry
+    }
+
+    pub fn reader(&self) -> ScarfReader {
+        ScarfReader {
+            shared: Arc::clone(&self.shared),
+        }
     }
 }
 
@@ -661,36 +439,65 @@ impl ScarfReader {
         self.shared.height
     }
 
-    /// Number of centre entries for pixel (x, y) in its block's FIFO; 0 outside the grid.
-    pub fn count(&self, x: u32, y: u32) -> u16 {
-        if x >= self.shared.width || y >= self.shared.height {
-            return 0;
-        }
-        u16::from(
-            self.shared.counts[y as usize * self.shared.width as usize + x as usize].load(Relaxed),
-        )
+    /// Whether pixel (x, y) is active; false outside the grid.
+    pub fn is_active(&self, x: u32, y: u32) -> bool {
+        let s = &*self.shared;
+        x < s.width && y < s.height && s.is_active((y * s.width + x) as usize, x, y)
     }
 
-    /// Number of active pixels as of the writer's last completed batch.
+    /// Number of active pixels, by a scan of the whole grid (for tests and diagnostics).
     pub fn active_count(&self) -> usize {
-        self.shared.active.load(Relaxed)
+        let full = Roi::full(self.shared.width, self.shared.height);
+        let mut mask = vec![0u8; full.area()];
+        self.fill_mask(full, &mut mask);
+        mask.iter().map(|&v| usize::from(v)).sum()
     }
 
     /// See [`EventSurface::fill_mask`].
     pub fn fill_mask(&self, roi: Roi, out: &mut [u8]) {
-        let counts = &self.shared.counts;
-        fill_roi(
-            self.shared.width,
-            self.shared.height,
-            roi,
-            out,
-            |start, dst| {
-                let src = &counts[start..start + dst.len()];
-                for (d, c) in dst.iter_mut().zip(src) {
-                    *d = u8::from(c.load(Relaxed) != 0);
-                }
-            },
-        );
+        let s = &*self.shared;
+        // Every row of a band of blocks compares against the same block sequences: `seq_row`
+        // holds them per column of the roi for the band `band`, and `fifo_row` N per column (0
+        // outside every real block, so that no difference is below it).
+        let mut band = None;
+        let (mut seq_row, mut lasts) = (Vec::new(), Vec::new());
+        let fifo_row: Vec<u16> = s.cols[(roi.x0.min(s.width)) as usize..]
+            .iter()
+            .take(roi.width as usize)
+            .map(|c| if c.real { s.fifo_len } else { 0 })
+            .collect();
+        fill_roi(s.width, s.height, roi, out, |start, dst| {
+            let (x0, y) = s.row_of.split(start as u32);
+            let r = &s.rows[y as usize];
+            if !r.real {
+                return;
+            }
+            if band != Some(r.own) {
+                band = Some(r.own);
+                seq_row.clear();
+                seq_row.extend(
+                    s.cols[x0 as usize..][..dst.len()]
+                        .iter()
+                        .map(|c| s.seqs[(r.own + c.own) as usize].load(Relaxed)),
+                );
+            }
+            // The row's words, unpacked, then compared in a loop the compiler vectorises (it
+            // never merges atomic loads, so comparing straight from them would go lane by lane).
+            lasts.clear();
+            for w in &s.last[start / 4..(start + dst.len()).div_ceil(4)] {
+                let v = w.load(Relaxed);
+                lasts.extend([
+                    v as u16,
+                    (v >> 16) as u16,
+                    (v >> 32) as u16,
+                    (v >> 48) as u16,
+                ]);
+            }
+            let row = seq_row.iter().zip(&lasts[start % 4..]).zip(&fifo_row);
+            for (d, ((&seq, &last), &n)) in dst.iter_mut().zip(row) {
+                *d = u8::from(seq.wrapping_sub(last) < n);
+            }
+        });
     }
 }
 
@@ -798,7 +605,7 @@ mod tests {
             ScarfGeometry::new(640, 480, 2, 0.1).is_err(),
             "N = 0 must be refused"
         );
-        // The u8 count image holds N ≤ 255: block 22 at alpha 1 gives 242, block 24 gives 288.
+        // N ≤ 255: block 22 at alpha 1 gives 242, block 24 gives 288.
         assert_eq!(ScarfGeometry::new(640, 480, 22, 1.0).unwrap().fifo_len, 242);
         assert!(ScarfGeometry::new(640, 480, 24, 1.0).is_err(), "N = 288");
         assert_eq!(
@@ -808,7 +615,8 @@ mod tests {
     }
 
     /// Straightforward port of the C++ update (a deque per block, skipped missing neighbours,
-    /// explicit centre flags): the branch-free writer must agree with it count for count.
+    /// explicit centre flags): the writer must agree with it on every pixel's activity, and on how
+    /// many entries its block has taken since an active pixel's newest centre entry.
     struct Reference {
         geometry: ScarfGeometry,
         width: u32,
@@ -845,17 +653,52 @@ mod tests {
         }
     }
 
-    /// Every pixel's count and the active total of `s` equal the reference's.
-    fn assert_same_counts(s: &Scarf, r: &Reference) {
+    impl Reference {
+        /// Per pixel: how many entries its block took after the pixel's newest centre entry, if
+        /// that entry is still in the FIFO (i.e. the pixel is active).
+        fn ages(&self) -> Vec<Option<u16>> {
+            let mut ages = vec![None; self.counts.len()];
+            for fifo in &self.fifos {
+                for (age, entry) in fifo.iter().rev().enumerate() {
+                    if let Some(p) = *entry {
+                        ages[p as usize].get_or_insert(age as u16);
+                    }
+                }
+            }
+            ages
+        }
+    }
+
+    /// The writer's counterpart of [`Reference::ages`]: its block's sequence minus the pixel's,
+    /// where that is below N.
+    fn ages(s: &Scarf) -> Vec<Option<u16>> {
+        let sh = &*s.reader.shared;
+        (0..sh.width * sh.height)
+            .map(|p| {
+                let (x, y) = sh.row_of.split(p);
+                let (c, r) = (&sh.cols[x as usize], &sh.rows[y as usize]);
+                let seq = sh.seqs[(r.own + c.own) as usize].load(Relaxed);
+                let age = seq.wrapping_sub(sh.last_of(p as usize));
+                (c.real && r.real && age < sh.fifo_len).then_some(age)
+            })
+            .collect()
+    }
+
+    /// Every pixel's age, its activity (by `is_active` and by a full mask) and the active total
+    /// of `s` equal the reference's.
+    fn assert_same_state(s: &Scarf, r: &Reference) {
+        assert_eq!(ages(s), r.ages());
         let reader = s.reader();
         let w = r.width;
-        let got: Vec<u16> = (0..r.counts.len() as u32)
-            .map(|p| reader.count(p % w, p / w))
+        let want: Vec<u8> = r.counts.iter().map(|&c| u8::from(c > 0)).collect();
+        let got: Vec<u8> = (0..r.counts.len() as u32)
+            .map(|p| u8::from(reader.is_active(p % w, p / w)))
             .collect();
-        assert_eq!(got, r.counts);
+        assert_eq!(got, want);
+        assert_eq!(mask(s, Roi::full(w, want.len() as u32 / w)), want);
         assert_eq!(
             reader.active_count(),
-            r.counts.iter().filter(|&&c| c > 0).count()
+            want.iter().map(|&v| usize::from(v)).sum::<usize>()
         );
     }
 
@@ -878,15 +721,15 @@ mod tests {
         s.writer().ingest(&pixels[..12_345]);
         s.writer().ingest(&pixels[12_345..]);
         pixels.iter().for_each(|&p| r.update(p));
-        assert_same_counts(&s, &r);
+        assert_same_state(&s, &r);
         assert!(
             s.reader().active_count() > 450,
             "the test must exercise a well-filled set"
         );
     }
 
-    /// The largest FIFO the u8 counts allow (block 22, N = 242), on a grid that is not a multiple
-    /// of the block, with a few pixels firing over and over so single counts reach N.
+    /// The largest FIFO at alpha 1 (block 22, N = 242), on a grid that is not a multiple of the
+    /// block, with a few pixels firing over and over so single counts reach N.
     #[test]
     fn agrees_with_the_reference_up_to_the_largest_fifo() {
         let (w, h) = (203u32, 140u32);
@@ -900,30 +743,28 @@ mod tests {
             .collect();
         let mut s = Scarf::new(w, h, 22, 1.0).unwrap();
         assert_eq!(s.geometry().fifo_len, 242);
-        assert!(matches!(s.writer.rings, Rings::Wide(_)));
         let mut r = Reference::new(w, h, 22, 1.0);
         s.writer().ingest(&pixels[..40_000]);
         pixels[..40_000].iter().for_each(|&p| r.update(p));
-        // A run of one pixel fills its block's FIFO: its count is N.
+        // A run of one pixel fills its block's FIFO: its count is N, its age 0.
         let hot = vec![60 * w + 70; 300];
         s.writer().ingest(&hot);
         hot.iter().for_each(|&p| r.update(p));
-        assert_eq!(s.reader().count(70, 60), 242);
+        assert_eq!(r.counts[(60 * w + 70) as usize], 242);
+        assert_same_state(&s, &r);
         s.writer().ingest(&pixels[40_000..]);
         pixels[40_000..].iter().for_each(|&p| r.update(p));
-        assert_same_counts(&s, &r);
+        assert_same_state(&s, &r);
     }
 
-    /// One-byte ring entries at their limits: the default 14 px block (area 196) with the longest
-    /// FIFO a u8 count allows (N = 255), one pixel fired until its count is 255 = u8::MAX (a count
-    /// is at most N, so it cannot wrap), then noise and clusters that evict it again; on a grid
-    /// with border pixels outside every block (their events feed only pad blocks).
+    /// The default 14 px block with the longest FIFO allowed (N = 255), one pixel fired until
+    /// its count is 255, then noise and clusters that evict it again; on a grid with border
+    /// pixels outside every block (their events feed only pad blocks).
     #[test]
-    fn one_byte_entries_agree_with_the_reference_at_the_largest_fifo() {
+    fn agrees_with_the_reference_at_the_largest_fifo_of_the_default_block() {
         let (w, h) = (150u32, 110u32);
         let mut s = Scarf::new(w, h, 14, 2.603).unwrap();
         assert_eq!(s.geometry().fifo_len, 255);
-        assert!(matches!(s.writer.rings, Rings::Narrow(_)));
         let mut r = Reference::new(w, h, 14, 2.603);
         let mut rng = Rng::new(17);
         let hot = 40 * w + 50;
@@ -936,23 +777,19 @@ mod tests {
         }));
         s.writer().ingest(&pixels[..400]);
         pixels[..400].iter().for_each(|&p| r.update(p));
-        assert_eq!(s.reader().count(50, 40), 255);
-        assert_same_counts(&s, &r);
+        assert_eq!(r.counts[hot as usize], 255);
+        assert_same_state(&s, &r);
         for chunk in pixels[400..].chunks(7_777) {
             s.writer().ingest(chunk);
             chunk.iter().for_each(|&p| r.update(p));
-            assert_same_counts(&s, &r);
+            assert_same_state(&s, &r);
         }
-        // A 16 px block (area 256) does not leave room for the spare value in a byte.
-        let wide = Scarf::new(w, h, 16, 1.0).unwrap();
-        assert!(matches!(wide.writer.rings, Rings::Wide(_)));
     }
 
-    /// A batch keeps at most the newest N entries per block, so the sizes around N matter:
-    /// one quadrant of a block (whose events all feed the same four blocks) in batches of N − 1,
-    /// N and N + 1 events, then a mixed stream (uniform, two clusters, indices past the grid) in
-    /// batches from one event to thousands, compared with the event-by-event reference after
-    /// every batch, with and without the newest-first walk.
+    /// Batch sizes around N: one quadrant of a block (whose events all feed the same four blocks)
+    /// in batches of N − 1, N and N + 1 events, then a mixed stream (uniform, two clusters,
+    /// indices past the grid) in batches from one event to thousands, compared with the
+    /// event-by-event reference after every batch.
     #[test]
     fn batches_of_every_size_agree_with_the_reference() {
         let (w, h) = (130u32, 100u32);
@@ -974,30 +811,94 @@ mod tests {
             .collect();
         let sizes_quadrant = [n - 1, n, n + 1, 1, 2 * n, n];
         let sizes_mixed = [1, 2, n - 1, n, n + 1, 4 * n - 1, 4 * n, 4 * n + 1, 5000, 17];
-        // Every batch walked, no batch walked, and the writer's own choice.
-        for walk in [Some(true), Some(false), None] {
-            let mut s = Scarf::new(w, h, 14, 1.0).unwrap();
-            let mut r = Reference::new(w, h, 14, 1.0);
-            for (stream, sizes) in [(&quadrant, &sizes_quadrant[..]), (&mixed, &sizes_mixed[..])] {
-                let (mut at, mut k) = (0, 0);
-                while at < stream.len() {
-                    let batch = &stream[at..(at + sizes[k % sizes.len()]).min(stream.len())];
-                    if let Some(walk) = walk {
-                        s.writer.walk_pays = walk;
-                        s.writer.since_walk = 0;
-                    }
-                    s.writer().ingest(batch);
-                    batch
-                        .iter()
-                        .filter(|&&p| p < w * h)
-                        .for_each(|&p| r.update(p));
-                    assert_same_counts(&s, &r);
-                    at += batch.len();
-                    k += 1;
-                }
+        let mut s = Scarf::new(w, h, 14, 1.0).unwrap();
+        let mut r = Reference::new(w, h, 14, 1.0);
+        for (stream, sizes) in [(&quadrant, &sizes_quadrant[..]), (&mixed, &sizes_mixed[..])] {
+            let (mut at, mut k) = (0, 0);
+            while at < stream.len() {
+                let batch = &stream[at..(at + sizes[k % sizes.len()]).min(stream.len())];
+                s.writer().ingest(batch);
+                batch
+                    .iter()
+                    .filter(|&&p| p < w * h)
+                    .for_each(|&p| r.update(p));
+                assert_same_state(&s, &r);
+                at += batch.len();
+                k += 1;
             }
-            assert!(s.reader().active_count() > 300, "a well-filled set");
         }
+        assert!(s.reader().active_count() > 300, "a well-filled set");
+    }
+
+    /// Sequences are u16: a block's passes 2^16 every 65536 entries, and a pixel left behind
+    /// would alias back into the window there without the sweeps. Most events hit one quadrant
+    /// of one block (so its sequence wraps four times, with pixels that fired once and never
+    /// again), the rest land anywhere; batches of fewer than N events, so that every window of N
+    /// entries has a comparison with the reference in it.
+    #[test]
+    fn sequences_wrap_exactly() {
+        let (w, h) = (70u32, 56u32);
+        let n = ScarfGeometry::new(w, h, 14, 1.0).unwrap().fifo_len as usize;
+        let mut rng = Rng::new(41);
+        // Block (1, 1) starts at pixel (21, 21); its top-left quadrant is 21..28 on both axes.
+        let pixels: Vec<u32> = (0..280_000)
+            .map(|_| {
+                if rng.below(20) == 0 {
+                    rng.below(u64::from(w * h)) as u32
+                } else {
+                    (21 + rng.below(7) as u32) * w + 21 + rng.below(7) as u32
+                }
+            })
+            .collect();
+        let mut s = Scarf::new(w, h, 14, 1.0).unwrap();
+        let mut r = Reference::new(w, h, 14, 1.0);
+        for batch in pixels.chunks(n - 37) {
+            s.writer().ingest(batch);
+            batch.iter().for_each(|&p| r.update(p));
+            assert_same_state(&s, &r);
+        }
+        let g = s.geometry();
+        let entries = pixels
+            .iter()
+            .filter(|&&p| g.connections(p % w, p / w).contains(&Some((1, 1))))
+            .count();
+        assert!(entries > 4 << 16, "block (1, 1) took {entries} entries");
+    }
+
+    /// The mask copies a row's words and compares them in bulk: rois that start and end at every
+    /// offset within a word, cross the grid's edges or lie partly outside it must agree pixel for
+    /// pixel with `is_active`.
+    #[test]
+    fn masks_of_any_roi_agree_with_is_active() {
+        let (w, h) = (203u32, 140u32);
+        let mut rng = Rng::new(53);
+        let pixels: Vec<u32> = (0..60_000)
+            .map(|i| match i % 3 {
+                0 => rng.below(u64::from(w * h)) as u32,
+                _ => (20 + rng.below(90) as u32) * w + 40 + rng.below(120) as u32,
+            })
+            .collect();
+        let mut s = Scarf::new(w, h, 14, 1.0).unwrap();
+        s.writer().ingest(&pixels);
+        let reader = s.reader();
+        for _ in 0..300 {
+            let roi = Roi {
+                x0: rng.below(u64::from(w + 4)) as u32,
+                y0: rng.below(u64::from(h + 4)) as u32,
+                width: 1 + rng.below(120) as u32,
+                height: 1 + rng.below(60) as u32,
+            };
+            let got = mask(&s, roi);
+            for (i, &v) in got.iter().enumerate() {
+                let (x, y) = (roi.x0 + i as u32 % roi.width, roi.y0 + i as u32 / roi.width);
+                assert_eq!(v, u8::from(reader.is_active(x, y)), "{roi:?} ({x}, {y})");
+            }
+        }
+        assert!(
+            reader.active_count() > 2000,
+            "a well-filled set: {}",
+            reader.active_count()
+        );
     }
 
     #[test]
@@ -1028,23 +929,25 @@ mod tests {
                 assert_eq!(v, 0, "border pixel ({x}, {y}) drawn");
             }
         }
-        assert_eq!(inner_active, s.reader().active_count());
         // Uniform input: each FIFO holds about a quarter centre entries, so ≈ N/4 of 196 pixels.
         assert!(inner_active > g.n_blocks() * 15, "{inner_active}");
-        // Centre entries per block never exceed N; events only inside one block fill it exactly.
-        let block_sum = |s: &Scarf, bx: u32, by: u32| -> u32 {
+        // A block's active pixels are distinct centre entries of its FIFO, so at most N; once
+        // only its own pixels fire, they are exactly the distinct pixels of the last N events.
+        let block_active = |s: &Scarf, bx: u32, by: u32| -> Vec<u32> {
             let r = s.reader();
-            let mut sum = 0;
+            let mut on = Vec::new();
             for y in y0 + by * g.block_h..y0 + (by + 1) * g.block_h {
                 for x in x0 + bx * g.block_w..x0 + (bx + 1) * g.block_w {
-                    sum += u32::from(r.count(x, y));
+                    if r.is_active(x, y) {
+                        on.push(y * w + x);
+                    }
                 }
             }
-            sum
+            on
         };
         for by in 0..g.grid_h {
             for bx in 0..g.grid_w {
-                assert!(block_sum(&s, bx, by) <= g.fifo_len);
+                assert!(block_active(&s, bx, by).len() <= g.fifo_len as usize);
             }
         }
         let (bx, by) = (5, 4);
@@ -1056,7 +959,10 @@ mod tests {
             })
             .collect();
         s.writer().ingest(&own);
-        assert_eq!(block_sum(&s, bx, by), g.fifo_len);
+        let mut newest = own[own.len() - g.fifo_len as usize..].to_vec();
+        newest.sort_unstable();
+        newest.dedup();
+        assert_eq!(block_active(&s, bx, by), newest);
     }
 
     /// A vertical edge (rows 40..220, one event per pixel per position) sweeps x = 30..190.
@@ -1205,6 +1111,6 @@ mod tests {
         expected.fill_mask(full, &mut b);
         assert_eq!(a, b);
         assert_eq!(reader.active_count(), expected.active_count());
-        assert!((0..w * h).all(|p| reader.count(p % w, p / w) == expected.count(p % w, p / w)));
+        assert_eq!(ages(&Scarf { writer, reader }), ages(&single));
     }
 }
