@@ -4,6 +4,8 @@ import json
 import math
 from pathlib import Path
 
+import pytest
+
 from evservo.cli import main
 
 
@@ -26,6 +28,8 @@ def test_latency_suite_quick_writes_a_complete_report(tmp_path):
     assert "| rate Mev/s |" in refreshed and "Command: `evservo bench --suite latency --quick" in refreshed
 
 
+# 21 episodes: a few minutes on a quiet 2-core machine, past the default hang guard at load 25.
+@pytest.mark.timeout(1800)
 def test_paper_suite_quick_runs_end_to_end_and_every_row_has_numbers(tmp_path):
     import re
 

@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -167,6 +168,29 @@ def test_ctrl_c_in_servo_sim_writes_a_partial_summary_and_exits_130(tmp_path, ca
     assert s["interrupted"] is True and not s["completed"] and s["ended"] == "interrupted (Ctrl-C)"
     assert s["simulated_s"] == pytest.approx(0.199)
     assert len((out / "log.csv").read_text().splitlines()) > 10
+
+
+@pytest.mark.parametrize("when", ["stopping", "writing"])
+def test_ctrl_c_after_the_real_loop_ended_still_stops_everything_and_writes_the_outputs(
+    small_rec, tmp_path, capsys, monkeypatch, when
+):
+    """A Ctrl-C that lands once servoing is over (on a loaded machine a user's Ctrl-C can arrive while
+    the loop stops the camera pump, or while the figure is drawn) asks for what is already happening:
+    the stop completes, the outputs are written, the exit code says Ctrl-C."""
+    from evservo import realloop
+
+    owner, name = (realloop._CameraPump, "halt") if when == "stopping" else (realloop, "summarize")
+    _interrupt_on_call(monkeypatch, owner, name, 1)
+    threads = {t.ident for t in threading.enumerate()}
+    out = tmp_path / "o"
+    args = ["servo", "--robot", "sim", "--camera", str(small_rec), "--settle", "0.05", "--out", str(out)]
+    assert main(args) == 130
+    s = read_json(out / "summary.json")
+    assert s["completed"] and s["control_cycles"] > 0 and s["interrupted"] == (when == "stopping")
+    assert (out / "motion.png").read_bytes()[:4] == b"\x89PNG" and (out / "log.csv").is_file()
+    assert "Traceback" not in capsys.readouterr().err
+    # The tracker and camera threads ended with the run.
+    assert {t.ident for t in threading.enumerate() if t.is_alive()} <= threads
 
 
 def test_a_second_ctrl_c_raises_at_once():

@@ -410,7 +410,8 @@ def test_servo_node_without_a_twist_subscriber_says_so_and_sends_nothing(servo_r
 def test_servo_node_stops_the_arm_on_ctrl_c(servo_rec, tmp_path, ros_env, ns):
     _need_ros()
     with _Procs(ros_env, tmp_path / "logs") as procs:
-        servo, peer = _servo(procs, ns, servo_rec, tmp_path, "--duration", "5")
+        # Long enough that the Ctrl-C lands while servoing however late a loaded machine reads the line.
+        servo, peer = _servo(procs, ns, servo_rec, tmp_path, "--duration", "60")
         procs.wait_line(servo, "servoing for")
         time.sleep(0.2)
         servo.send_signal(signal.SIGINT)

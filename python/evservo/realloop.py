@@ -47,7 +47,8 @@ commanded twist braked to zero at the acceleration limit and then an explicit ar
 
 and with an immediate arm stop on an exception (lost link to the arm, camera failure) or Ctrl-C.
 Whatever happens the arm is told to stop before :func:`run_real_loop` returns or raises, and the
-tracker and camera threads are ended.
+tracker and camera threads are ended; a Ctrl-C while that stop runs lets it finish (and marks the
+run ``interrupted``), as the commands do while they write the outputs (exit code 130).
 
 Outputs (:func:`summarize`, :func:`write_outputs`) use the simulated episode's key names where the
 concept is the same (``completed``, ``ended``, ``servo_pos_rms_mm``, ``servo_rot_rms_deg``,
@@ -74,7 +75,7 @@ from evservo import _evcore, events, geometry
 from evservo.control import Pbvs
 from evservo.control.hold import LossHold
 from evservo.geometry import pose_errors, rotation_from_first_rad
-from evservo.interrupt import ctrl_c_held_back
+from evservo.interrupt import StopOnInterrupt, ctrl_c_held_back
 from evservo.limits import CartesianLimits
 from evservo.outputs import make_out_dir
 from evservo.robots.base import Arm, shift_twist
@@ -416,18 +417,22 @@ def run_real_loop(
         if rec.n == 0 and des is None:
             raise  # nothing ran: the caller reports the error
     finally:
-        sys.setswitchinterval(switch)
-        if gc_was_enabled:
-            gc.enable()
-        try:
-            arm.stop()
-        except Exception as err:  # the link is gone: the arm's own watchdogs stop it
-            log.error("stopping the arm failed: %r", err)
-        pump.halt()
-        try:
-            tracker.stop()
-        finally:
-            tracker_t1 = clock()
+        # A Ctrl-C while the loop stops asks for what is already happening: it must not cut the arm's
+        # stop short (a second one still raises, for a stop that hangs).
+        with StopOnInterrupt() as late:
+            sys.setswitchinterval(switch)
+            if gc_was_enabled:
+                gc.enable()
+            try:
+                arm.stop()
+            except Exception as err:  # the link is gone: the arm's own watchdogs stop it
+                log.error("stopping the arm failed: %r", err)
+            pump.halt()
+            try:
+                tracker.stop()
+            finally:
+                tracker_t1 = clock()
+        interrupted = interrupted or late.requested
     recorded = rec.arrays()
     stats = tracker.stats()
     des = des if des is not None else hold.T_c_o_des

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from evservo.interrupt import StopOnInterrupt
+
 #: Options of the real loop that set a :class:`~evservo.realloop.RealLoopConfig` field (its defaults hold).
 CONFIG_OPTIONS = {"settle": "settle_s", "stiffness": "stiffness", "rate": "rate_hz", "stale_after": "stale_after_s",
                   "max_jump": "max_jump_m", "max_jump_rad": "max_jump_rad", "replay_speed": "speed"}  # fmt: skip
@@ -178,9 +180,12 @@ def _run_real(args: argparse.Namespace) -> int:
             with viewing(viewer, tracker, source) as (events, on_cycle):
                 result = run_real_loop(arm, events, tracker, cfg, desired, progress=print, meta=meta, on_cycle=on_cycle)
         finally:
-            arm.close()
+            with StopOnInterrupt() as late:  # a Ctrl-C now must not cut the arm's close (or the outputs) short
+                arm.close()
     finally:
         source.close()
+    if late.requested:
+        result = replace(result, interrupted=True)
     return report_real(result, out, gt=(rec.gt_t_us, rec.gt_T) if rec is not None else None)
 
 
@@ -189,11 +194,14 @@ def report_real(result: Any, out: Path, gt: tuple[np.ndarray, np.ndarray] | None
     it ended normally, 130 on Ctrl-C, 1 when its watchdog or an error stopped it."""
     from evservo.realloop import summarize, write_outputs
 
-    summary = summarize(result, gt=gt)
-    paths = write_outputs(result, out, summary)
-    print_real_summary(summary)
-    print(f"figure: {paths['motion']}\nsummary: {paths['summary']}\nlog: {paths['log']}")
-    if result.interrupted:
+    # The run is over: a Ctrl-C while its outputs are written must not lose them (a second one still
+    # raises, for a write that hangs).
+    with StopOnInterrupt() as late:
+        summary = summarize(result, gt=gt)
+        paths = write_outputs(result, out, summary)
+        print_real_summary(summary)
+        print(f"figure: {paths['motion']}\nsummary: {paths['summary']}\nlog: {paths['log']}")
+    if result.interrupted or late.requested:
         return 130
     if not result.completed:
         why = result.error or result.ended

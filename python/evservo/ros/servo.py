@@ -27,11 +27,13 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from evservo import _evcore
+from evservo.interrupt import StopOnInterrupt
 from evservo.io import EVENT_CD
 from evservo.realloop import RealLoopConfig, RealLoopResult, run_real_loop
 from evservo.robots.config import RigConfig
@@ -239,9 +241,14 @@ def run_servo(
         )  # fmt: skip
         try:
             with viewing(viewer, tracker, events) as (source, on_cycle):
-                return run_real_loop(arm, source, tracker, cfg, desired, progress=say, meta=meta, on_cycle=on_cycle)
+                result = run_real_loop(arm, source, tracker, cfg, desired, progress=say, meta=meta, on_cycle=on_cycle)
         finally:
-            events.close()
-            arm.close()  # a last zero twist
-            if not pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S)):
-                say(f"warning: the last (zero) twist on {twist_topic} was not acknowledged within {ACK_TIMEOUT_S:g} s")
+            with StopOnInterrupt() as late:  # a Ctrl-C now must not cut the last twist (or the outputs) short
+                events.close()
+                arm.close()  # a last zero twist
+                if not pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S)):
+                    say(
+                        f"warning: the last (zero) twist on {twist_topic} was not acknowledged within "
+                        f"{ACK_TIMEOUT_S:g} s"
+                    )
+    return replace(result, interrupted=True) if late.requested else result

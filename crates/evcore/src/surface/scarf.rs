@@ -481,23 +481,49 @@ impl ScarfReader {
                         .map(|c| s.seqs[(r.own + c.own) as usize].load(Relaxed)),
                 );
             }
-            // The row's words, unpacked, then compared in a loop the compiler vectorises (it
-            // never merges atomic loads, so comparing straight from them would go lane by lane).
-            lasts.clear();
-            for w in &s.last[start / 4..(start + dst.len()).div_ceil(4)] {
+            // The row's words copied out (the compiler never merges atomic loads, so comparing
+            // straight from them would go lane by lane), then compared in bulk.
+            let words = &s.last[start / 4..(start + dst.len()).div_ceil(4)];
+            lasts.resize(4 * words.len(), 0);
+            for (lanes, w) in lasts.chunks_exact_mut(4).zip(words) {
                 let v = w.load(Relaxed);
-                lasts.extend([
+                lanes.copy_from_slice(&[
                     v as u16,
                     (v >> 16) as u16,
                     (v >> 32) as u16,
                     (v >> 48) as u16,
                 ]);
             }
-            let row = seq_row.iter().zip(&lasts[start % 4..]).zip(&fifo_row);
-            for (d, ((&seq, &last), &n)) in dst.iter_mut().zip(row) {
-                *d = u8::from(seq.wrapping_sub(last) < n);
-            }
+            compare_row(&seq_row, &lasts[start % 4..], &fifo_row, dst);
         });
+    }
+}
+
+/// One row of a mask: `dst[i]` is 1 iff the block sequence `seqs[i]` is less than `fifo[i]` past
+/// the pixel's `lasts[i]` (all three at least as long as `dst`).
+fn compare_row(seqs: &[u16], lasts: &[u16], fifo: &[u16], dst: &mut [u8]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        return unsafe { compare_row_avx2(seqs, lasts, fifo, dst) };
+    }
+    compare_row_lanes(seqs, lasts, fifo, dst);
+}
+
+/// [`compare_row`] compiled for AVX2: sixteen pixels per vector instead of SSE2's eight.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn compare_row_avx2(seqs: &[u16], lasts: &[u16], fifo: &[u16], dst: &mut [u8]) {
+    compare_row_lanes(seqs, lasts, fifo, dst);
+}
+
+#[inline(always)]
+fn compare_row_lanes(seqs: &[u16], lasts: &[u16], fifo: &[u16], dst: &mut [u8]) {
+    let n = dst.len();
+    // Equal-length slices, so the loop below has no bounds checks and vectorises.
+    let (seqs, lasts, fifo) = (&seqs[..n], &lasts[..n], &fifo[..n]);
+    for i in 0..n {
+        dst[i] = u8::from(seqs[i].wrapping_sub(lasts[i]) < fifo[i]);
     }
 }
 
@@ -556,6 +582,30 @@ mod tests {
         for i in (1..v.len()).rev() {
             v.swap(i, rng.below(i as u64 + 1) as usize);
         }
+    }
+
+    /// `len` pixels of a `w`×`h` grid: each uniform over the whole grid (border pixels included)
+    /// with probability 1/`one_in_uniform`, else uniform in `rect`, a cluster whose blocks' FIFOs
+    /// turn over many times.
+    fn mixed_stream(
+        w: u32,
+        h: u32,
+        seed: u64,
+        len: usize,
+        one_in_uniform: u64,
+        rect: Roi,
+    ) -> Vec<u32> {
+        let mut rng = Rng::new(seed);
+        (0..len)
+            .map(|_| {
+                if rng.below(one_in_uniform) == 0 {
+                    rng.below(u64::from(w * h)) as u32
+                } else {
+                    let y = rect.y0 + rng.below(u64::from(rect.height)) as u32;
+                    y * w + rect.x0 + rng.below(u64::from(rect.width)) as u32
+                }
+            })
+            .collect()
     }
 
     /// A random merge of two streams that keeps each stream's own order.
@@ -705,17 +755,13 @@ mod tests {
     #[test]
     fn agrees_with_a_plain_port_of_the_reference() {
         let (w, h) = (120u32, 90u32);
-        let mut rng = Rng::new(3);
-        // Half uniform (border pixels included), half clustered so FIFOs wrap many times.
-        let pixels: Vec<u32> = (0..60_000)
-            .map(|i| {
-                if i % 2 == 0 {
-                    rng.below(u64::from(w * h)) as u32
-                } else {
-                    (40 + rng.below(20) as u32) * w + 30 + rng.below(25) as u32
-                }
-            })
-            .collect();
+        let cluster = Roi {
+            x0: 30,
+            y0: 40,
+            width: 25,
+            height: 20,
+        };
+        let pixels = mixed_stream(w, h, 3, 60_000, 2, cluster);
         let mut s = Scarf::new(w, h, 11, 0.7).unwrap();
         let mut r = Reference::new(w, h, 11, 0.7);
         s.writer().ingest(&pixels[..12_345]);
@@ -839,17 +885,14 @@ mod tests {
     fn sequences_wrap_exactly() {
         let (w, h) = (70u32, 56u32);
         let n = ScarfGeometry::new(w, h, 14, 1.0).unwrap().fifo_len as usize;
-        let mut rng = Rng::new(41);
         // Block (1, 1) starts at pixel (21, 21); its top-left quadrant is 21..28 on both axes.
-        let pixels: Vec<u32> = (0..280_000)
-            .map(|_| {
-                if rng.below(20) == 0 {
-                    rng.below(u64::from(w * h)) as u32
-                } else {
-                    (21 + rng.below(7) as u32) * w + 21 + rng.below(7) as u32
-                }
-            })
-            .collect();
+        let quadrant = Roi {
+            x0: 21,
+            y0: 21,
+            width: 7,
+            height: 7,
+        };
+        let pixels = mixed_stream(w, h, 41, 280_000, 20, quadrant);
         let mut s = Scarf::new(w, h, 14, 1.0).unwrap();
         let mut r = Reference::new(w, h, 14, 1.0);
         for batch in pixels.chunks(n - 37) {
@@ -871,13 +914,14 @@ mod tests {
     #[test]
     fn masks_of_any_roi_agree_with_is_active() {
         let (w, h) = (203u32, 140u32);
-        let mut rng = Rng::new(53);
-        let pixels: Vec<u32> = (0..60_000)
-            .map(|i| match i % 3 {
-                0 => rng.below(u64::from(w * h)) as u32,
-                _ => (20 + rng.below(90) as u32) * w + 40 + rng.below(120) as u32,
-            })
-            .collect();
+        let cluster = Roi {
+            x0: 40,
+            y0: 20,
+            width: 120,
+            height: 90,
+        };
+        let pixels = mixed_stream(w, h, 53, 60_000, 3, cluster);
+        let mut rng = Rng::new(54);
         let mut s = Scarf::new(w, h, 14, 1.0).unwrap();
         s.writer().ingest(&pixels);
         let reader = s.reader();
@@ -899,6 +943,37 @@ mod tests {
             "a well-filled set: {}",
             reader.active_count()
         );
+    }
+
+    /// The row comparison at every length around the vector widths, with differences at the
+    /// edges that matter (N − 1, N, wrapped below zero, the largest) and N = 0 columns: the
+    /// dispatched build (AVX2 here) against the portable loop and the definition.
+    #[test]
+    fn row_comparison_matches_its_definition() {
+        let mut rng = Rng::new(61);
+        for len in 0..150 {
+            let fifo: Vec<u16> = (0..len)
+                .map(|_| [0, 1, 98, 255][rng.below(4) as usize])
+                .collect();
+            let seqs: Vec<u16> = (0..len).map(|_| rng.below(1 << 16) as u16).collect();
+            let lasts: Vec<u16> = seqs
+                .iter()
+                .zip(&fifo)
+                .map(|(&s, &n)| {
+                    let age =
+                        [0, n.wrapping_sub(1), n, n + 1, u16::MAX, 40_000][rng.below(6) as usize];
+                    s.wrapping_sub(age)
+                })
+                .collect();
+            let want: Vec<u8> = (0..len)
+                .map(|i| u8::from(u32::from(seqs[i].wrapping_sub(lasts[i])) < u32::from(fifo[i])))
+                .collect();
+            let (mut got, mut plain) = (vec![7u8; len], vec![7u8; len]);
+            compare_row(&seqs, &lasts, &fifo, &mut got);
+            compare_row_lanes(&seqs, &lasts, &fifo, &mut plain);
+            assert_eq!(got, want, "len {len}");
+            assert_eq!(plain, want, "len {len}");
+        }
     }
 
     #[test]
