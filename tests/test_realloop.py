@@ -13,6 +13,7 @@ import signal
 import sys
 import threading
 import time
+import weakref
 from types import SimpleNamespace
 
 import numpy as np
@@ -212,7 +213,16 @@ def test_ur_dry_run_never_opens_the_control_interface(rec_path, rec):
 # -- (c) franky-sim -------------------------------------------------------------------------------
 
 
-def test_franka_sim_connect_stream_and_clean_shutdown(rec_path, rec):
+# franky's own planner (Ruckig), rarely, cannot plan a velocity motion from the state the simulator
+# reports: "Motion planner failed with error code -110" ended one CI run in about 25, and none of 40 runs
+# here, also at load 10. That failure is franky's, not ours; what is ours is stopping the arm cleanly when
+# the arm refuses, which the test checks before it tries once more.
+FRANKY_PLANNER_FAILED = "Motion planner failed"
+
+
+@pytest.fixture
+def franka_sim():
+    """A franky-sim server (one MuJoCo FR3 on loopback) and evservo's FrankaArm class."""
     pytest.importorskip("franky", reason="needs franky-control")
     pytest.importorskip("franky_sim", reason="needs franky-sim (requirements-hw.txt)")
     from evservo.robots.franka import FrankaArm
@@ -220,21 +230,74 @@ def test_franka_sim_connect_stream_and_clean_shutdown(rec_path, rec):
 
     sim = Sim()
     try:
-        source, tracker, cfg = parts(rec_path, rec, duration_s=0.5)
-        with FrankaArm(sim.host, realtime="ignore", limits=GENTLE) as arm:
-            p0 = arm.T_w_e()[:3, 3]
-            r = run_real_loop(arm, source, tracker, cfg)
-            assert r.completed and r.error is None, r.ended
-            assert sum(h.kind == "command" for h in arm.gate.history) > 20
-            assert arm.gate.history[-1].kind == "halt"
-            moved = np.linalg.norm(arm.T_w_e()[:3, 3] - p0)
-        assert 1e-4 < moved < 0.05
-        with FrankaArm(sim.host, realtime="ignore") as again:  # released cleanly, and at rest
-            a = again.T_w_e()[:3, 3]
-            time.sleep(0.2)
-            assert np.linalg.norm(again.T_w_e()[:3, 3] - a) < 1e-3
+        yield sim.host, FrankaArm
     finally:
         sim.close()
+
+
+def assert_connects_again_at_rest(FrankaArm, host: str) -> None:
+    """The last arm released the robot (franky-sim serves one client at a time) and left it at rest."""
+    with FrankaArm(host, realtime="ignore") as again:
+        a = again.T_w_e()[:3, 3]
+        time.sleep(0.2)
+        assert np.linalg.norm(again.T_w_e()[:3, 3] - a) < 1e-3
+
+
+def test_franka_sim_connect_stream_and_clean_shutdown(rec_path, rec, franka_sim):
+    host, FrankaArm = franka_sim
+    for attempt in (1, 2):
+        source, tracker, cfg = parts(rec_path, rec, duration_s=0.5)
+        with FrankaArm(host, realtime="ignore", limits=GENTLE) as arm:
+            p0 = arm.T_w_e()[:3, 3]
+            r = run_real_loop(arm, source, tracker, cfg)
+            assert arm.gate.history[-1].kind == "halt"
+            if attempt == 1 and r.error is not None and FRANKY_PLANNER_FAILED in r.error:
+                assert not r.completed and r.ended == f"error: {r.error}"
+                continue
+            assert r.completed and r.error is None, r.ended
+            assert sum(h.kind == "command" for h in arm.gate.history) > 20
+            moved = np.linalg.norm(arm.T_w_e()[:3, 3] - p0)
+        break
+    assert 1e-4 < moved < 0.05
+    assert_connects_again_at_rest(FrankaArm, host)
+
+
+class RefusesOneMotion:
+    """A franky robot whose ``n``-th motion franky's planner refuses, as it did in CI."""
+
+    def __init__(self, *args, n: int = 40, **kwargs) -> None:
+        import franky
+
+        self.robot, self.moves_left = franky.Robot(*args, **kwargs), n
+
+    def __getattr__(self, name: str):
+        return getattr(self.robot, name)
+
+    def move(self, motion, asynchronous: bool = False):
+        self.moves_left -= 1
+        if self.moves_left == 0:
+            raise RuntimeError("Motion planner failed with error code -110")
+        return self.robot.move(motion, asynchronous=asynchronous)
+
+
+def test_franka_sim_a_refused_motion_stops_the_loop_and_the_robot_can_be_connected_again(rec_path, rec, franka_sim):
+    host, FrankaArm = franka_sim
+    robots = []
+
+    def connect(*args, **kwargs) -> RefusesOneMotion:
+        robots.append(RefusesOneMotion(*args, **kwargs))
+        return robots[-1]
+
+    source, tracker, cfg = parts(rec_path, rec, duration_s=0.5)
+    with FrankaArm(host, realtime="ignore", limits=GENTLE, robot_factory=connect) as arm:
+        r = run_real_loop(arm, source, tracker, cfg)
+        assert r.ended == "error: Motion planner failed with error code -110" and not r.completed
+        assert arm.gate.history[-1].kind == "halt"
+    # Nothing that outlived the loop (a log record, a traceback) may still hold the first connection:
+    # connecting again would wait for it forever.
+    first = weakref.ref(robots.pop())
+    assert first() is None, "the refused motion's connection outlived the arm"
+    assert_connects_again_at_rest(FrankaArm, host)
 
 
 # -- (d) injected faults: a pose jump, a stale pose, a lost object ----------------------------------

@@ -413,7 +413,9 @@ def run_real_loop(
         raise
     except Exception as err:
         ended, error = f"error: {err}", str(err)
-        log.error("real loop: %s; stopping the arm", err)
+        # The message, not the exception: a log record keeping an exception keeps its traceback's
+        # frames alive, and with them a driver's connection that a reconnect would wait for.
+        log.error("real loop: %s; stopping the arm", error)
         if rec.n == 0 and des is None:
             raise  # nothing ran: the caller reports the error
     finally:
@@ -426,7 +428,7 @@ def run_real_loop(
             try:
                 arm.stop()
             except Exception as err:  # the link is gone: the arm's own watchdogs stop it
-                log.error("stopping the arm failed: %r", err)
+                log.error("stopping the arm failed: %s", repr(err))
             pump.halt()
             try:
                 tracker.stop()

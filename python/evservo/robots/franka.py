@@ -123,7 +123,7 @@ class FrankaArm(GatedArm):
             try:
                 self.robot.join_motion(timeout=2.0)
             except self._fr.Exception as err:
-                log.warning("Franka %s: motion ended with %s", self.host, err)
+                log.warning("Franka %s: motion ended with %s", self.host, str(err))
         self.robot = None
 
     def _call(self, get: Callable[[Any], Any]) -> Any:

@@ -202,7 +202,7 @@ class SafetyGate:
         except Exception as err:
             # The stop itself failed (e.g. the link is gone): nothing more can be done from here, and
             # the original error, if any, matters more to the caller than this one.
-            log.error("%s: halt failed (%s): %r", self.name, reason, err)
+            log.error("%s: halt failed (%s): %s", self.name, reason, repr(err))
 
     @property
     def last_sent(self) -> np.ndarray:
