@@ -149,6 +149,32 @@ def test_edge_events_keep_the_structured_sort_order():
         assert np.array_equal(ev, want)
 
 
+def test_edge_events_are_the_distinct_pixels_points_move_into():
+    """Without noise, each interval fires once per pixel that some point entered from another pixel,
+    and a point not seen before or now (behind the camera) fires nothing."""
+    camera = _evcore.Camera.imx636()
+    T = np.eye(4)
+    T[:3, 3] = (0.0, 0.0, 0.6)
+    points = model_point_set(camera, "box", T, n_points=3000, seed=3)
+    gen = synth.EdgeEventGenerator(camera, points, T, 0, noise_fraction=0.0, seed=3)
+    poses = [T.copy() for _ in range(4)]
+    poses[0][:3, 3] += (0.003, 0.001, 0.0)
+    poses[1][:3, 3] = (0.0, 0.0, -0.6)  # behind the camera
+    poses[3][:3, 3] += (0.003, 0.002, 0.0)
+    prev = np.floor(camera.project(points @ T[:3, :3].T + T[:3, 3]) + 0.5)
+    for k, P in enumerate(poses, start=1):
+        cur = np.floor(camera.project(points @ P[:3, :3].T + P[:3, 3]) + 0.5)
+        seen = np.all(np.isfinite(cur), axis=1) & np.all(np.isfinite(prev), axis=1)
+        on = seen & (cur[:, 0] >= 0) & (cur[:, 0] < camera.width) & (cur[:, 1] >= 0) & (cur[:, 1] < camera.height)
+        entered = cur[on & np.any(cur != prev, axis=1)].astype(np.int64)
+        want = np.unique(entered[:, 1] * camera.width + entered[:, 0])
+        ev = gen.events_until(k * 1000, P)
+        got = np.sort(ev["y"].astype(np.int64) * camera.width + ev["x"])
+        assert np.array_equal(got, want)
+        assert (len(want) > 100) == (k in (1, 4))  # nothing fires into or out of the pose behind
+        prev = cur
+
+
 @pytest.mark.parametrize("ff", [True])
 def test_an_episode_with_the_reference_code_is_identical(monkeypatch, ff):
     """Tick for tick, the same episode (0.15 s, edges, fixed costs) before and after the shortcuts."""

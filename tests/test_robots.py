@@ -7,7 +7,7 @@ from evservo import geometry, trajectories
 from evservo.control import Pbvs
 from evservo.robots import PANDA, UR5E, Arm, PoseFollower, shift_twist, solve_joint_velocities
 from evservo.robots.ik import joint_velocity_bounds
-from evservo.sim.scene import DualArmScene
+from evservo.sim.scene import DualArmScene, SceneConfig
 
 # Franka's published kinematics (Craig's modified DH: a, d, alpha per joint, then the flange).
 FRANKA_DH = [
@@ -45,6 +45,21 @@ def test_both_arms_load(scene):
     assert scene.ur.joint_positions().shape == (6,) and scene.panda.joint_positions().shape == (7,)
     # At q = 0 the Panda stands upright, its flange 0.088 m forward (towards the UR5e) of its base.
     np.testing.assert_allclose(scene.panda.fk(np.zeros(7))[:3, 3], [1.2 - 0.088, 0.0, 0.9265], atol=1e-3)
+
+
+def test_scenes_of_one_layout_share_the_compilation_but_not_their_state(scene):
+    other = DualArmScene()
+    assert other.model is not scene.model and other.data is not scene.data
+    np.testing.assert_array_equal(other.model.body_pos, scene.model.body_pos)
+    other.model.body_pos[1] += 0.5  # a change to one scene's model ...
+    assert not np.array_equal(other.model.body_pos[1], scene.model.body_pos[1])  # ... is its own
+    # Another camera mount is another layout: its own compilation, the camera site where it says.
+    moved = DualArmScene(SceneConfig(T_e_c=geometry.pose((0.0, 0.0, 0.15))))
+    q = (PANDA.q_min + PANDA.q_max) / 2
+    moved.panda.set_joint_positions(q)
+    other.panda.set_joint_positions(q)
+    lift = np.linalg.norm(moved.T_w_c()[:3, 3] - other.T_w_c()[:3, 3])
+    assert lift == pytest.approx(0.10, abs=1e-9)
 
 
 def test_panda_fk_matches_site_and_franka_kinematics(scene):

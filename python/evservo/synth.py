@@ -60,25 +60,33 @@ class EdgeEventGenerator:
         W, H = self.camera.width, self.camera.height
         rng, prev = self._rng, self._prev
         cur = self._pixels(T_c_o)
-        ok = np.all(np.isfinite(cur), axis=1) & np.all(np.isfinite(prev), axis=1)
-        moved = ok & np.any(cur != prev, axis=1)
-        inside = moved & (cur[:, 0] >= 0) & (cur[:, 0] < W) & (cur[:, 1] >= 0) & (cur[:, 1] < H)
-        sig = cur[inside].astype(np.int64)
+        u, v = cur[:, 0], cur[:, 1]
+        # A point fires where it lands on the sensor in another pixel than the one it was seen in.
+        # Written element-wise: NaN and ±inf fail the range tests, and ``prev``'s x + y is finite
+        # exactly when both are (row-wise ``np.all``/``np.any`` over two columns cost 3x as much).
+        fires = (
+            (u >= 0)
+            & (u < W)
+            & (v >= 0)
+            & (v < H)
+            & np.isfinite(prev[:, 0] + prev[:, 1])
+            & ((u != prev[:, 0]) | (v != prev[:, 1]))
+        )
         # Pixels hit by several points fire once.
-        sig = np.unique(sig[:, 1] * W + sig[:, 0])
+        sig = _distinct(v[fires].astype(np.int64) * W + u[fires].astype(np.int64))
         n_noise = rng.binomial(len(sig), self.noise_fraction) if self.noise_fraction > 0 else 0
         if self.noise_rate_hz > 0:
             n_noise += rng.poisson(self.noise_rate_hz * (t1 - t0) * 1e-6)
         noise = rng.integers(0, W * H, size=n_noise)
         idx = np.concatenate([sig, noise])
+        x, y = idx % W, idx // W
+        p = rng.integers(0, 2, size=len(idx))
+        t = rng.integers(t0, t1, size=len(idx))
+        # The order of ``ev.sort(order="t")`` (ties broken by x, y, p, the fields in dtype order) by one
+        # integer key; equal keys are equal events, so an unstable sort gives the same array.
+        order = np.argsort((((t - t0) * W + x) * H + y) * 2 + p)
         ev = np.empty(len(idx), dtype=EVENT_CD)
-        ev["x"] = idx % W
-        ev["y"] = idx // W
-        ev["p"] = rng.integers(0, 2, size=len(idx))
-        ev["t"] = rng.integers(t0, t1, size=len(idx))
-        # The order of ``ev.sort(order="t")`` (ties broken by x, y, p, the other fields in dtype order),
-        # ~9x faster than its field-by-field comparisons.
-        ev = ev[np.lexsort((ev["p"], ev["y"], ev["x"], ev["t"]))]
+        ev["x"], ev["y"], ev["p"], ev["t"] = x[order], y[order], p[order], t[order]
         self._prev, self.t_us = cur, t1
         return ev
 
@@ -103,3 +111,12 @@ def edge_events(
         raise ValueError("times must be strictly increasing")
     gen = EdgeEventGenerator(camera, points_o, poses[0], int(times_us[0]), noise_fraction, seed=seed)
     return [gen.events_until(int(t), T) for t, T in zip(times_us[1:], poses[1:], strict=True)]
+
+
+def _distinct(values: np.ndarray) -> np.ndarray:
+    """``np.unique(values)`` for a 1-D integer array by sorting: numpy 2's hashing ``unique`` takes
+    ~8x as long on the few thousand pixels of one interval."""
+    s = np.sort(values)
+    keep = np.ones(len(s), dtype=bool)
+    np.not_equal(s[1:], s[:-1], out=keep[1:])
+    return s[keep]

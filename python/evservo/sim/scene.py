@@ -15,6 +15,8 @@ looks at the target face-on at depth Z on its optical axis.
 
 from __future__ import annotations
 
+import copy
+import functools
 import importlib.util
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -91,23 +93,8 @@ class DualArmScene:
 
     def __init__(self, config: SceneConfig | None = None) -> None:
         self.config = cfg = config or SceneConfig()
-        world = mujoco.MjSpec()
-        world.option.timestep = cfg.physics_dt_s
-        world.worldbody.add_light(pos=[0.6, 0.0, 2.5], dir=[0.0, 0.0, -1.0])
-        ur = mujoco.MjSpec.from_file(str(robosuite_robot_xml("ur5e")))
-        panda = mujoco.MjSpec.from_file(str(robosuite_robot_xml("panda")))
-        hand = ur.body("right_hand")
-        box = hand.add_body(name="target", pos=cfg.T_e_o[:3, 3], quat=_quat_wxyz(cfg.T_e_o))
-        half = [s / 2 for s in cfg.box_size_m]
-        box.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=half, rgba=[0.8, 0.2, 0.1, 1.0])
-        panda.body("right_hand").add_site(name="camera", pos=cfg.T_e_c[:3, 3], quat=_quat_wxyz(cfg.T_e_c))
-        world.worldbody.add_frame(pos=[0.0, 0.0, 0.0]).attach_body(ur.body("base"), "ur_", "")
-        facing_ur = [0.0, 0.0, 0.0, 1.0]  # (w, x, y, z): half a turn about world z
-        world.worldbody.add_frame(pos=[cfg.base_distance_m, 0.0, 0.0], quat=facing_ur).attach_body(
-            panda.body("base"), "panda_", ""
-        )
-        self.model = world.compile()
-        self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        # A copy, so that no scene sees another's changes to the shared compiled model.
+        self.model = copy.deepcopy(_compiled_model(_layout_key(cfg)))
         self.data = mujoco.MjData(self.model)
         self.ur = SimArm(self.model, self.data, [f"ur_{j}" for j in UR_JOINTS], "ur_right_hand", UR5E)
         self.panda = SimArm(
@@ -173,3 +160,47 @@ def _quat_wxyz(T: np.ndarray) -> list[float]:
     q = np.zeros(4)
     mujoco.mju_mat2Quat(q, np.ascontiguousarray(T[:3, :3]).reshape(9))
     return q.tolist()
+
+
+# base distance (m), T_e_c and T_e_o (4×4 row-major), box size (m), physics step (s)
+_LayoutKey = tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, ...], float]
+
+
+def _layout_key(cfg: SceneConfig) -> _LayoutKey:
+    """What of ``cfg`` the compiled model depends on, hashable (the start pose and view do not)."""
+    return (
+        cfg.base_distance_m,
+        tuple(np.asarray(cfg.T_e_c, float).ravel()),
+        tuple(np.asarray(cfg.T_e_o, float).ravel()),
+        tuple(cfg.box_size_m),
+        cfg.physics_dt_s,
+    )
+
+
+@functools.lru_cache(maxsize=4)
+def _compiled_model(key: _LayoutKey) -> mujoco.MjModel:
+    """The two arms composed and compiled for the layout ``key`` (see :func:`_layout_key`).
+
+    Compiling reads and processes the arms' ~690 000 mesh vertices (≈ 2 s); an episode, a test module
+    or a benchmark worker builds many scenes in one process, so each layout is compiled once and
+    copied (≈ 0.05 s)."""
+    base_distance_m, T_e_c, T_e_o, box_size_m, physics_dt_s = key
+    T_e_c, T_e_o = np.reshape(T_e_c, (4, 4)), np.reshape(T_e_o, (4, 4))
+    world = mujoco.MjSpec()
+    world.option.timestep = physics_dt_s
+    world.worldbody.add_light(pos=[0.6, 0.0, 2.5], dir=[0.0, 0.0, -1.0])
+    ur = mujoco.MjSpec.from_file(str(robosuite_robot_xml("ur5e")))
+    panda = mujoco.MjSpec.from_file(str(robosuite_robot_xml("panda")))
+    hand = ur.body("right_hand")
+    box = hand.add_body(name="target", pos=T_e_o[:3, 3], quat=_quat_wxyz(T_e_o))
+    half = [s / 2 for s in box_size_m]
+    box.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=half, rgba=[0.8, 0.2, 0.1, 1.0])
+    panda.body("right_hand").add_site(name="camera", pos=T_e_c[:3, 3], quat=_quat_wxyz(T_e_c))
+    world.worldbody.add_frame(pos=[0.0, 0.0, 0.0]).attach_body(ur.body("base"), "ur_", "")
+    facing_ur = [0.0, 0.0, 0.0, 1.0]  # (w, x, y, z): half a turn about world z
+    world.worldbody.add_frame(pos=[base_distance_m, 0.0, 0.0], quat=facing_ur).attach_body(
+        panda.body("base"), "panda_", ""
+    )
+    model = world.compile()
+    model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    return model
