@@ -9,8 +9,9 @@ import trimesh
 
 import evservo
 from conftest import box_start_pose
-from evservo import geometry
+from evservo import _evcore, geometry
 from evservo.events import EVENT_CD
+from evservo.models import load_object, to_core_mesh
 from evservo.synth import edge_events
 from evservo.tracking import model_point_set
 
@@ -55,11 +56,40 @@ def test_baselines_run_through_the_same_api(camera, box_sequence, solver):
     assert steps[kind] == 5 * 500
 
 
-def _static_events(camera, T):
-    dense = model_point_set(camera, "box", T, n_points=30000, seed=3)
-    uv = camera.project(dense @ T[:3, :3].T + T[:3, 3])
-    px = np.unique(np.floor(uv + 0.5).astype(np.int64), axis=0)
-    px = px[(px[:, 0] >= 0) & (px[:, 0] < camera.width) & (px[:, 1] >= 0) & (px[:, 1] < camera.height)]
+#: Fine-render samples per pixel spacing in :func:`_static_events`; even, so that a pixel's centre
+#: and the midpoints to its neighbours (±0.5 px) fall on fine pixel centres.
+FINE = 4
+
+
+def _static_events(camera, T, threshold_log=0.2):
+    """The events a sensor fires around the box held at ``T``: every raw pixel whose centre a
+    brightness edge passes within half a pixel of, along x or y, i.e. whose log intensity a sweep
+    of the image by ±0.5 px over it changes by the contrast threshold. Taken from a render
+    ``FINE`` times finer than the sensor, sampled at the exact undistorted positions of the
+    pixels' half-way points: independent of S*, the tracker's own model points, so the test
+    checks the tracker against where the optics put the edges, not against S*'s conventions."""
+    mesh = to_core_mesh(load_object("box"))
+    # Raw pixels around the box (its corners' projection and a margin), inside the sensor.
+    uv = camera.project(np.asarray(mesh.vertices) @ T[:3, :3].T + T[:3, 3])
+    x0, y0 = np.maximum(np.floor(uv.min(0)) - 3, 0)
+    x1, y1 = np.minimum(np.ceil(uv.max(0)) + 3, (camera.width - 1, camera.height - 1))
+    ys, xs = np.mgrid[int(y0) : int(y1) + 1, int(x0) : int(x1) + 1]
+    raw = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+    half = [(-0.5, 0.0), (0.5, 0.0), (0.0, -0.5), (0.0, 0.5)]
+    fine_uv = [FINE * camera.rectify_pixels(raw + d) + FINE / 2 for d in half]
+    rect = camera.rectified()
+    fine = evservo.Camera(
+        FINE * (rect.width + 1) + 1, FINE * (rect.height + 1) + 1, FINE * rect.fx, FINE * rect.fy,
+        FINE * rect.cx + FINE / 2, FINE * rect.cy + FINE / 2,
+    )  # fmt: skip
+    lo = np.floor(np.min([f.min(0) for f in fine_uv], axis=0)).astype(int)
+    hi = np.ceil(np.max([f.max(0) for f in fine_uv], axis=0)).astype(int)
+    roi = (int(lo[0]), int(lo[1]), int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1))
+    r = _evcore.render(mesh, fine, T, roi=roi, background=0.1)
+    log_i = np.log(np.asarray(r["intensity"], np.float64) + 1e-3)
+    at = [log_i[np.rint(f[:, 1]).astype(int) - lo[1], np.rint(f[:, 0]).astype(int) - lo[0]] for f in fine_uv]
+    fires = (np.abs(at[0] - at[1]) >= threshold_log) | (np.abs(at[2] - at[3]) >= threshold_log)
+    px = raw[fires].astype(np.int64)
     # Random firing order: SCARF keeps the newest events of each block, so a sorted stream would
     # keep a spatially biased subset.
     px = px[np.random.default_rng(0).permutation(len(px))]

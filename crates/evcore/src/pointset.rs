@@ -4,9 +4,12 @@
 //!
 //! An edge pixel is a foreground pixel with a 4-neighbour that is background or farther by more
 //! than `depth_jump_m` (silhouette or occlusion boundary), whose normal differs from a neighbour's
-//! by more than `crease_deg` (crease), or where the rendered intensity gradient exceeds
+//! by more than `crease_deg` with a rendered brightness step of at least `crease_contrast` across
+//! (crease: one whose faces render alike fires no events), or where the rendered intensity gradient exceeds
 //! `texture_grad` (print and albedo edges). Silhouette and depth jumps take the nearer pixel, so
-//! every point lies on the surface that is actually seen.
+//! every point lies at the depth of the surface that is actually seen; its point is placed half a
+//! pixel outwards, on the outline's expected place rather than the pixel's centre
+//! ([`outline_offset`]).
 //!
 //! Which edge pixels become points: a share `1 − balance` is spread evenly over the image (a part
 //! hidden or out of view then takes only its share of the points with it); the rest is chosen for
@@ -37,6 +40,9 @@ pub struct PointSetParams {
     /// Angle (degrees) between neighbouring normals that counts as a crease. Above the facet
     /// angle of tessellated curved surfaces, so that spheres and cylinders give no false creases.
     pub crease_deg: f32,
+    /// Step in rendered log intensity (natural log) a crease must show to count: an event camera
+    /// sees only brightness steps, and a crease both of whose faces render alike fires nothing.
+    pub crease_contrast: f32,
     /// Rendered-intensity gradient magnitude (intensity units per pixel, central differences)
     /// that counts as a texture edge.
     pub texture_grad: f32,
@@ -53,6 +59,9 @@ impl Default for PointSetParams {
             max_points: 1000,
             depth_jump_m: 0.01,
             crease_deg: 30.0,
+            // Half the sensor's typical contrast threshold (0.2, see `sim::params`): a step that
+            // small fires hardly ever; the plate's unlit rim creases render below 0.1.
+            crease_contrast: 0.1,
             texture_grad: 0.08,
             balance: 0.0,
             seed: 0,
@@ -111,7 +120,9 @@ fn edge_pixels(r: &Rendered, params: &PointSetParams) -> Vec<(u32, u32, EdgeKind
                 }
                 smooth += 1;
                 let m = r.normal_c[q];
-                if n[0] * m[0] + n[1] * m[1] + n[2] * m[2] < cos_crease {
+                if n[0] * m[0] + n[1] * m[1] + n[2] * m[2] < cos_crease
+                    && log_step(r.intensity[i], r.intensity[q]) >= params.crease_contrast
+                {
                     kind = Some(EdgeKind::Crease);
                 }
             }
@@ -128,6 +139,47 @@ fn edge_pixels(r: &Rendered, params: &PointSetParams) -> Vec<(u32, u32, EdgeKind
         }
     }
     edges
+}
+
+/// Step between two rendered intensities in log units, as the event camera's pixels compare them
+/// (`LOG_EPS` keeps black finite).
+fn log_step(a: f32, b: f32) -> f32 {
+    const LOG_EPS: f32 = 1e-3;
+    ((a + LOG_EPS) / (b + LOG_EPS)).ln().abs()
+}
+
+/// Where the outline through silhouette pixel `i` of render `r` lies, relative to the pixel's
+/// centre (pixels): halfway to its background (or farther, by more than `depth_jump_m`)
+/// 4-neighbours, averaged over them.
+///
+/// Why: the renderer samples pixel centres, so the last centre inside an outline lies 0 to 1
+/// pixel spacing inside it, half a pixel on average, while the camera's events fire where the
+/// outline crosses a centre, i.e. on the outline itself. Points at the centres made the model's
+/// outline half a pixel too small all round, which the solvers read as the object being nearer
+/// than it is: 0.5 px on a 40 px wide object is 2.5 % of its depth (30 mm at 1.2 m). Halfway to
+/// the outer neighbour is the outline's expected place for an edge along a pixel axis; for one
+/// at 45° both outer neighbours count and the mean step across it is again the expected 0.35 px.
+fn outline_offset(r: &Rendered, i: usize, depth_jump_m: f32) -> [f64; 2] {
+    let w = r.roi.width as usize;
+    let (x, y) = (i % w, i / w);
+    let d = r.depth_m[i];
+    let steps = [
+        (x > 0).then(|| (i - 1, [-1.0, 0.0])),
+        (x + 1 < w).then(|| (i + 1, [1.0, 0.0])),
+        (y > 0).then(|| (i - w, [0.0, -1.0])),
+        (i + w < r.depth_m.len()).then(|| (i + w, [0.0, 1.0])),
+    ];
+    let (mut sum, mut n) = ([0.0, 0.0], 0.0);
+    for (q, [sx, sy]) in steps.into_iter().flatten() {
+        if r.depth_m[q] - d > depth_jump_m {
+            sum = [sum[0] + sx, sum[1] + sy];
+            n += 1.0;
+        }
+    }
+    if n == 0.0 {
+        return [0.0, 0.0];
+    }
+    [0.5 * sum[0] / n, 0.5 * sum[1] / n]
 }
 
 /// Deterministic, spatially even subset of at most `max` of `pixels`: shuffle by `seed`, then
@@ -439,6 +491,15 @@ pub fn extract_point_set(
         params.crease_deg.is_finite() && params.crease_deg > 0.0 && params.crease_deg < 180.0,
         || format!("crease_deg must be in (0, 180), got {}", params.crease_deg),
     )?;
+    ensure(
+        params.crease_contrast.is_finite() && params.crease_contrast >= 0.0,
+        || {
+            format!(
+                "crease_contrast must be finite and non-negative, got {}",
+                params.crease_contrast
+            )
+        },
+    )?;
     ensure((0.0..=1.0).contains(&params.balance), || {
         format!("balance must be in [0, 1], got {}", params.balance)
     })?;
@@ -516,7 +577,11 @@ pub fn extract_point_set(
     ) {
         let (x, y, kind) = edges[k];
         let i = (y - r.roi.y0) as usize * r.roi.width as usize + (x - r.roi.x0) as usize;
-        let p_c = cam.ray(f64::from(x), f64::from(y)) * f64::from(r.depth_m[i]);
+        let [dx, dy] = match kind {
+            EdgeKind::Silhouette => outline_offset(&r, i, params.depth_jump_m),
+            EdgeKind::Crease | EdgeKind::Texture => [0.0, 0.0],
+        };
+        let p_c = cam.ray(f64::from(x) + dx, f64::from(y) + dy) * f64::from(r.depth_m[i]);
         let p_o = t_o_c * Point3::from(p_c);
         points_o.push([p_o.x as f32, p_o.y as f32, p_o.z as f32]);
         kinds.push(kind);
@@ -596,21 +661,130 @@ mod tests {
             .map(|(x, y, k)| ((x, y), k))
             .collect();
         for (p, kind) in set.points_o.iter().zip(&set.kinds) {
-            // On the cube surface: the largest coordinate magnitude is the half edge.
-            let on_face = p.iter().fold(0.0f32, |m, c| m.max(c.abs()));
+            let p_c = t_c_o * Point3::from(Vector3::from(p.map(f64::from)));
+            let (u, v) = cam.project_pinhole(&p_c.coords).unwrap();
+            // On the cube surface (the largest coordinate magnitude is the half edge); an outline
+            // point may stand off it by its half-pixel step outwards, 0.5 px at its depth.
+            let slack = match kind {
+                EdgeKind::Silhouette => 0.5 * p_c.z / cam.fx,
+                EdgeKind::Crease | EdgeKind::Texture => 0.0,
+            };
+            let on_face = f64::from(p.iter().fold(0.0f32, |m, c| m.max(c.abs())));
             assert!(
-                (on_face - 0.1).abs() < 1e-3,
+                (on_face - 0.1).abs() < 1e-3 + slack,
                 "{p:?} is {} m off the surface",
                 (on_face - 0.1).abs()
             );
-            let p_c = t_c_o * Point3::from(Vector3::from(p.map(f64::from)));
-            let (u, v) = cam.project_pinhole(&p_c.coords).unwrap();
-            let (px, py) = (u.round(), v.round());
+            // Crease and texture points sit on their pixel's centre, outline points within half a
+            // pixel of a silhouette pixel's centre.
+            let reach = if *kind == EdgeKind::Silhouette {
+                0.501
+            } else {
+                0.01
+            };
+            let hit = (-1..=1)
+                .flat_map(|dy| {
+                    (-1..=1).map(move |dx| (u.round() + dx as f64, v.round() + dy as f64))
+                })
+                .any(|(px, py)| {
+                    (u - px).hypot(v - py) < reach
+                        && edges.get(&(px as u32, py as u32)) == Some(kind)
+                });
+            assert!(hit, "({u}, {v}) is no {kind:?} pixel's point");
+        }
+    }
+
+    /// A cube seen along its body diagonal under the headlight: its three faces render alike, so
+    /// the creases between them fire no events and must give no points; the outline still does.
+    #[test]
+    fn creases_whose_faces_render_alike_give_no_points() {
+        let cam = cam();
+        let mesh = test_cube(0.2, Shading::Constant(0.5));
+        let diagonal = UnitQuaternion::rotation_between(
+            &Vector3::new(1.0, 1.0, 1.0),
+            &Vector3::new(0.0, 0.0, -1.0),
+        )
+        .unwrap();
+        let t_c_o = Isometry3::from_parts(Translation3::new(0.0, 0.0, 0.7), diagonal);
+        let set = extract_point_set(&mesh, &cam, &t_c_o, &PointSetParams::default()).unwrap();
+        let count = |k: EdgeKind| set.kinds.iter().filter(|&&q| q == k).count();
+        assert_eq!(count(EdgeKind::Crease), 0);
+        assert!(
+            count(EdgeKind::Silhouette) > 500,
+            "{}",
+            count(EdgeKind::Silhouette)
+        );
+        // Turned off the diagonal the faces differ in brightness and the creases count again.
+        let turned = t_c_o * UnitQuaternion::from_euler_angles(0.0, 0.5, 0.0);
+        let set = extract_point_set(&mesh, &cam, &turned, &PointSetParams::default()).unwrap();
+        assert!(set.kinds.contains(&EdgeKind::Crease));
+    }
+
+    /// Signed distance (pixels, negative inside) of (u, v) from the convex polygon `corners`
+    /// (image points in order around it).
+    fn signed_distance_px(corners: &[(f64, f64)], (u, v): (f64, f64)) -> f64 {
+        let n = corners.len();
+        let area2: f64 = (0..n)
+            .map(|i| {
+                let ((x0, y0), (x1, y1)) = (corners[i], corners[(i + 1) % n]);
+                x0 * y1 - x1 * y0
+            })
+            .sum();
+        (0..n)
+            .map(|i| {
+                let ((x0, y0), (x1, y1)) = (corners[i], corners[(i + 1) % n]);
+                let len = (x1 - x0).hypot(y1 - y0);
+                // Outward normal for either winding.
+                let cross = (x1 - x0) * (v - y0) - (y1 - y0) * (u - x0);
+                -cross.signum() * area2.signum() * (cross.abs() / len)
+            })
+            .fold(f64::NEG_INFINITY, f64::max)
+    }
+
+    /// Events fire where an outline crosses a pixel centre, i.e. on the outline; S*'s outline points
+    /// must sit there too, not half a pixel inside it (which reads as the object being nearer).
+    #[test]
+    fn outline_points_sit_on_the_outline_not_inside_it() {
+        let cam = cam();
+        let mesh = test_cube(0.2, Shading::Constant(0.5));
+        for roll in [0.0, 0.35, std::f64::consts::FRAC_PI_4] {
+            // Where an outline falls between pixel centres decides how far inside the last centre
+            // is; eight sub-pixel shifts (1 px is 2 mm here) spread it evenly.
+            let mut d = Vec::new();
+            for k in 0..8 {
+                let shift_m = 0.25e-3 * f64::from(k);
+                // Face-on, 1.2 m away (a 100 px square): the outline is the front face's border.
+                let t_c_o = Isometry3::from_parts(
+                    Translation3::new(0.013 + shift_m, -0.007 + 0.7 * shift_m, 1.2),
+                    UnitQuaternion::from_euler_angles(0.0, 0.0, roll),
+                );
+                let set =
+                    extract_point_set(&mesh, &cam, &t_c_o, &PointSetParams::default()).unwrap();
+                let corners: Vec<(f64, f64)> = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+                    .iter()
+                    .map(|&(a, b)| {
+                        let p = t_c_o * Point3::new(0.1 * a, 0.1 * b, -0.1);
+                        cam.project_pinhole(&p.coords).unwrap()
+                    })
+                    .collect();
+                d.extend(
+                    set.points_o
+                        .iter()
+                        .zip(&set.kinds)
+                        .filter(|(_, k)| **k == EdgeKind::Silhouette)
+                        .map(|(p, _)| {
+                            let p_c = t_c_o * Point3::from(Vector3::from(p.map(f64::from)));
+                            signed_distance_px(&corners, cam.project_pinhole(&p_c.coords).unwrap())
+                        }),
+                );
+            }
+            assert!(d.len() > 1600, "{} outline points", d.len());
+            let mean = d.iter().sum::<f64>() / d.len() as f64;
+            // Pixel centres inside the outline sit 0.35-0.5 px inside it on average.
             assert!(
-                (u - px).hypot(v - py) < 0.01,
-                "({u}, {v}) is not a pixel centre"
+                mean.abs() < 0.1,
+                "roll {roll}: outline points {mean:.3} px off the outline"
             );
-            assert_eq!(edges.get(&(px as u32, py as u32)), Some(kind), "({u}, {v})");
         }
     }
 

@@ -255,6 +255,7 @@ fn extract_point_set<'py>(
         texture_grad,
         balance,
         seed,
+        ..PointSetParams::default()
     };
     let (m, cam) = (mesh.inner.clone(), camera.inner);
     let set = py
