@@ -2784,6 +2784,46 @@ mod tests {
         ev
     }
 
+    /// Locked on the square (at `at(k)` in millisecond `k`) while its outline fires every
+    /// millisecond among the background for 60 ms; then every event is lost for 60 ms (the
+    /// producer's slices go on, empty), to 120 ms.
+    fn locked_then_a_dropout(
+        core: &mut TrackerCore,
+        pts: &[[f32; 3]],
+        at: impl Fn(i64) -> Pose,
+        rng: &mut crate::rng::Rng,
+    ) {
+        let cam = *core.camera();
+        for k in 0..60 {
+            let ev = millisecond(&cam, pts, &at(k), k * 1000, true, rng);
+            core.update(ev.as_slice()).unwrap();
+        }
+        assert!(!core.latest().lost, "locked before the dropout");
+        for k in 60..120 {
+            core.advance_time(k * 1000).unwrap();
+            core.step();
+        }
+    }
+
+    /// After [`locked_then_a_dropout`], only the background comes back until the pose held at
+    /// `pose` is trusted again (within 20 ms); the millisecond after that update.
+    fn background_until_trusted(
+        core: &mut TrackerCore,
+        pts: &[[f32; 3]],
+        pose: &Pose,
+        rng: &mut crate::rng::Rng,
+    ) -> i64 {
+        let cam = *core.camera();
+        let mut k = 120;
+        while core.latest().lost {
+            let ev = millisecond(&cam, pts, pose, k * 1000, false, rng);
+            core.update(ev.as_slice()).unwrap();
+            k += 1;
+            assert!(k < 140, "the held pose is trusted again within 20 ms");
+        }
+        k
+    }
+
     #[test]
     fn an_object_that_falls_silent_while_the_background_fires_on_reads_as_lost() {
         // Locked on the square while its outline fires every millisecond (a followed object that
@@ -2935,15 +2975,7 @@ mod tests {
                 }
                 p
             };
-            for k in 0..60 {
-                let ev = millisecond(&cam, &pts, &at(k), k * 1000, true, &mut rng);
-                core.update(ev.as_slice()).unwrap();
-            }
-            assert!(!core.latest().lost, "moving {moving}");
-            for k in 60..120 {
-                core.advance_time(k * 1000).unwrap();
-                core.step();
-            }
+            locked_then_a_dropout(&mut core, &pts, at, &mut rng);
             assert!(core.latest().lost, "moving {moving}: blind");
             let mut trusted_at = None;
             for k in 120..300 {
@@ -2975,21 +3007,8 @@ mod tests {
         let (mut core, pts, pose) = core(IngestLimit::Off);
         let cam = *core.camera();
         let mut rng = crate::rng::Rng::new(7);
-        for k in 0..60 {
-            let ev = millisecond(&cam, &pts, &pose, k * 1000, true, &mut rng);
-            core.update(ev.as_slice()).unwrap();
-        }
-        for k in 60..120 {
-            core.advance_time(k * 1000).unwrap();
-            core.step();
-        }
-        let mut k = 120;
-        while core.latest().lost {
-            let ev = millisecond(&cam, &pts, &pose, k * 1000, false, &mut rng);
-            core.update(ev.as_slice()).unwrap();
-            k += 1;
-            assert!(k < 140, "the held pose is trusted again within 20 ms");
-        }
+        locked_then_a_dropout(&mut core, &pts, |_| pose, &mut rng);
+        let k = background_until_trusted(&mut core, &pts, &pose, &mut rng);
         for k in k..k + 5 {
             let ev = millisecond(&cam, &pts, &pose, k * 1000, false, &mut rng);
             core.update(ev.as_slice()).unwrap();
@@ -3067,14 +3086,7 @@ mod tests {
         let (mut core, pts, pose) = core(IngestLimit::Off);
         let cam = *core.camera();
         let mut rng = crate::rng::Rng::new(7);
-        for k in 0..60 {
-            let ev = millisecond(&cam, &pts, &pose, k * 1000, true, &mut rng);
-            core.update(ev.as_slice()).unwrap();
-        }
-        for k in 60..120 {
-            core.advance_time(k * 1000).unwrap();
-            core.step();
-        }
+        locked_then_a_dropout(&mut core, &pts, |_| pose, &mut rng);
         let before = core.latest().pose;
         for k in 120..300 {
             let ev = millisecond(&cam, &pts, &pose, k * 1000, false, &mut rng);
@@ -3104,22 +3116,9 @@ mod tests {
         // (with the refill's low confidence merely ignored, it was trusted to the end).
         for confirmed in [false, true] {
             let (mut core, pts, pose) = core(IngestLimit::Off);
-            let cam = *core.camera();
             let mut rng = crate::rng::Rng::new(7);
-            for k in 0..60 {
-                let ev = millisecond(&cam, &pts, &pose, k * 1000, true, &mut rng);
-                core.update(ev.as_slice()).unwrap();
-            }
-            for k in 60..120 {
-                core.advance_time(k * 1000).unwrap();
-                core.step();
-            }
-            let mut k = 120;
-            while core.latest().lost {
-                let ev = millisecond(&cam, &pts, &pose, k * 1000, false, &mut rng);
-                core.update(ev.as_slice()).unwrap();
-                k += 1;
-            }
+            locked_then_a_dropout(&mut core, &pts, |_| pose, &mut rng);
+            let k = background_until_trusted(&mut core, &pts, &pose, &mut rng);
             let solver = &mut core.solver;
             assert!(solver.held_still && k < 140, "held still at {k} ms");
             let refill_end_us = solver.out.resumed_at_us.load(Ordering::Acquire) + AFTER_GAP_US;
