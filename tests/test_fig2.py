@@ -14,7 +14,8 @@ import pytest
 
 import evservo
 from evservo.models import load_object, to_core_mesh
-from evservo.sim.record import background_pose, scaled_camera, start_pose
+from evservo.sim.record import background_pose, start_pose
+from evservo.sim.sources import scaled_camera
 from evservo.tracking import Tracker, model_point_set
 
 T_STOP_US, T_END_US, DT_US = 150_000, 350_000, 500

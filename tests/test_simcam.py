@@ -11,7 +11,8 @@ from scipy.ndimage import distance_transform_edt
 import evservo
 from evservo import _evcore, geometry, trajectories
 from evservo.models import load_object, to_core_mesh
-from evservo.sim.record import background_pose, scaled_camera, start_pose, substep_times
+from evservo.sim.record import background_pose, start_pose, substep_times
+from evservo.sim.sources import scaled_camera
 from evservo.tracking import model_point_set
 
 

@@ -43,6 +43,7 @@ from evservo import io as evio
 from evservo.io import EVENT_CD
 from evservo.models import load_object, to_core_mesh
 from evservo.outputs import atomic_path, check_out_file
+from evservo.sim.sources import scaled_camera
 
 #: Start rotation of the object (rotation vector, radians): facing the camera, turned ~33° so that
 #: three faces show.
@@ -89,18 +90,6 @@ class RecordConfig:
             raise ValueError(f"duration must be at most 3600 s (ground truth is held at 1 kHz), got {self.duration_s}")
         if self.gt_rate_hz < 1000:
             raise ValueError(f"ground truth needs >= 1000 Hz, got {self.gt_rate_hz}")
-
-
-def scaled_camera(camera: _evcore.Camera, scale: float) -> _evcore.Camera:
-    """The same lens on a sensor scaled by ``scale`` per side (intrinsics scaled about pixel centres,
-    distortion unchanged since it acts on normalised coordinates)."""
-    if scale == 1.0:
-        return camera
-    w, h = round(camera.width * scale), round(camera.height * scale)
-    if w < 16 or h < 16:
-        raise ValueError(f"scale {scale} leaves a {w}x{h} sensor; too small")
-    cx, cy = (camera.cx + 0.5) * scale - 0.5, (camera.cy + 0.5) * scale - 0.5
-    return _evcore.Camera(w, h, camera.fx * scale, camera.fy * scale, cx, cy, camera.dist)
 
 
 def start_pose(distance_m: float) -> np.ndarray:

@@ -55,14 +55,16 @@ EDGE_NOISE_RATE_HZ = 50_000.0
 EDGE_RENDER_SCALE = 3
 
 
-def fine_camera(camera: _evcore.Camera, scale: int) -> _evcore.Camera:
-    """The undistorted ``camera`` with ``scale``×``scale`` pixels per pixel (OpenCV convention: pixel
-    centres at integers, so the principal point moves by (scale − 1)/2 as well)."""
-    c = camera.rectified()
-    off = (scale - 1) / 2
-    return _evcore.Camera(
-        scale * c.width, scale * c.height, scale * c.fx, scale * c.fy, scale * c.cx + off, scale * c.cy + off
-    )
+def scaled_camera(camera: _evcore.Camera, scale: float) -> _evcore.Camera:
+    """The same lens on a sensor scaled by ``scale`` per side (intrinsics scaled about pixel centres,
+    distortion unchanged since it acts on normalised coordinates)."""
+    if scale == 1.0:
+        return camera
+    w, h = round(camera.width * scale), round(camera.height * scale)
+    if w < 16 or h < 16:
+        raise ValueError(f"scale {scale} leaves a {w}x{h} sensor; too small")
+    cx, cy = (camera.cx + 0.5) * scale - 0.5, (camera.cy + 0.5) * scale - 0.5
+    return _evcore.Camera(w, h, camera.fx * scale, camera.fy * scale, cx, cy, camera.dist)
 
 
 def edge_points(camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, seed: int) -> np.ndarray:
@@ -79,7 +81,8 @@ def edge_points(camera: _evcore.Camera, obj: str, T_c_o0: np.ndarray, seed: int)
     from scipy.spatial import cKDTree
 
     coarse = model_point_set(camera, obj, T_c_o0, n_points=30_000, seed=seed)
-    fine = model_point_set(fine_camera(camera, EDGE_RENDER_SCALE), obj, T_c_o0, n_points=30_000, seed=seed)
+    fine_camera = scaled_camera(camera.rectified(), EDGE_RENDER_SCALE)
+    fine = model_point_set(fine_camera, obj, T_c_o0, n_points=30_000, seed=seed)
     _, nearest = cKDTree(fine).query(coarse)
     return fine[np.unique(nearest)]
 
