@@ -918,7 +918,8 @@ pub struct Solver {
     /// A pose was given or trusted once: while lost, local steps track on from it between the
     /// global passes.
     had_pose: bool,
-    /// When the last full global pass, near pass and pass of any kind ran (see [`Pass`]).
+    /// When the last full global pass, near pass and pass of any kind ran (see [`Pass`]); the near
+    /// pass's clock restarts whenever a pose is trusted (the next loss opens with one).
     full_pass: PassClock,
     near_pass: PassClock,
     any_pass: PassClock,
@@ -983,7 +984,8 @@ enum Pass {
     /// The whole bank over the whole image (tens of milliseconds), and what `Near` searches.
     Full,
     /// The image around the last trusted pose and the current one (`TemplateBank::search_near`;
-    /// a few thousand chamfer placements and a few LM refinements): run between full passes.
+    /// a few thousand chamfer placements and a few LM refinements): the first pass of a loss,
+    /// then run between full passes.
     Near,
     /// The current pose, a candidate being tracked, and its look-alikes: whether it is found again.
     Confirm,
@@ -1340,6 +1342,7 @@ impl Solver {
         if !lost {
             self.searching = false;
             self.pending = None;
+            self.near_pass = PassClock::default();
             self.trusted_pose = Some(accepted);
             self.follow_view(&accepted);
         }
@@ -1666,7 +1669,17 @@ impl Solver {
     /// Which global pass, if any, is due at event time `t_us` while searching (`tracking`: there
     /// is a pose to track on locally between passes); notes its time.
     fn pass_due(&mut self, t_us: i64, tracking: bool) -> Option<Pass> {
-        let pass = if self.pending.is_some() {
+        let resumed = self.out.resumed_at_us.load(Ordering::Acquire);
+        let settling = (0..self.config.search_fresh_us).contains(&t_us.saturating_sub(resumed));
+        let pass = if tracking && settling {
+            // Events back from a gap for less than the search's freshness window: the full-image
+            // field would hold the few pixels fired since and the edges from before the gap in
+            // their blocks, which vouch for the held pose (events-stop: the first pass, 1 ms
+            // after the return, scored the pose held 18 mm off at 0.49 and found nothing; 10 ms
+            // after it, the box 1.3 mm off at 0.67). The local steps track on meanwhile, seeing
+            // only what fired since (see `AFTER_GAP_US`).
+            None
+        } else if self.pending.is_some() {
             // Confirming a candidate costs a few LM refinements, not a sweep: it is due once the
             // local steps have tracked it for `GLOBAL_PASS_EVERY_US` (the object moved on while
             // the pass that found it ran: 18–24 mm in its 80 ms, occlusion-0.5s).
@@ -1674,6 +1687,14 @@ impl Solver {
                 .after_us
                 .is_some_and(|a| t_us - a >= GLOBAL_PASS_EVERY_US || t_us < a)
                 .then_some(Pass::Confirm)
+        } else if self.had_pose && self.near_pass.ran_us.is_none() {
+            // The first pass of a loss looks only around where the pose is and was trusted: the
+            // object is most often still near there (events back after a dropout, a pose that
+            // slid off a fast object), and a near pass costs a fraction of a full one, which
+            // publishes nothing for its whole length (events-stop: the full pass charged
+            // 100–150 ms while the right held pose read lost). A full pass follows if it finds
+            // nothing.
+            Some(Pass::Near)
         } else if !tracking || self.full_pass.due(t_us, FULL_PASS_REST) {
             Some(Pass::Full)
         } else if self.had_pose && self.near_pass.due(t_us, NEAR_PASS_REST) {
@@ -1917,6 +1938,7 @@ impl Solver {
             self.schedule.restart();
             if passes >= CONFIRM_PASSES {
                 self.had_pose = true;
+                self.near_pass = PassClock::default();
                 self.trusted_pose = Some(pose);
                 self.last.confidence = c;
                 self.last.lost = false;
