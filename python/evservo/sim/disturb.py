@@ -104,5 +104,6 @@ class Disturbances:
             if fill:
                 noise = uniform_noise(self.width, self.height, max(t0_us, a), min(t1_us, b), self.noise_rate_hz,
                                       self._rng)  # fmt: skip
-                events = np.sort(np.concatenate([events, noise]), order="t", kind="stable")
+                # With the dtype: concatenate would pack EVENT_CD, and the tracker copy it back.
+                events = np.sort(np.concatenate([events, noise], dtype=EVENT_CD), order="t", kind="stable")
         return events

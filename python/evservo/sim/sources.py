@@ -246,7 +246,9 @@ class RenderedSource:
             self._pending = (t1, T_c_o, T_c_bg, occ, moved_px)
         else:
             batches.append(self._render(t1, T_c_o, T_c_bg, occ, moved_px))
-        return np.concatenate(batches) if batches else np.zeros(0, _evcore.EVENT_CD)
+        # With the dtype given: numpy's concatenate otherwise packs EVENT_CD (drops the padding before
+        # t), and the tracker must copy every event back into its layout (≈ 12 ns/event on the producer).
+        return np.concatenate(batches, dtype=_evcore.EVENT_CD) if batches else np.zeros(0, _evcore.EVENT_CD)
 
     def _render(
         self, t1: int, T_c_o: np.ndarray, T_c_bg: np.ndarray, occ: np.ndarray | None, moved_px: float
@@ -271,7 +273,7 @@ class RenderedSource:
                 )
             )
         self.t_us, self.T_c_o, self.T_c_bg, self.occ = t1, T_c_o, T_c_bg, occ
-        events = np.concatenate(batches)
+        events = np.concatenate(batches, dtype=_evcore.EVENT_CD)  # not packed: see events_until
         # The sensor stamps each step's events in [its start, its end]; as when every tick is
         # rendered and handed out on its own, events stamped at a tick's end are not handed out.
         return events[~np.isin(events["t"], [*ticks, t1])] if ticks else events[events["t"] < t1]
