@@ -202,7 +202,8 @@ def run_scenario(
             noise["x"], noise["y"] = idx % W, idx // W
             noise["p"] = rng.integers(0, 2, n_noise)
             noise["t"] = rng.integers(t_us - TICK_US, t_us, n_noise)
-            ev = np.sort(np.concatenate([ev, noise]), order="t", kind="stable")
+            # With the dtype: concatenate would pack EVENT_CD, and the tracker copy it back.
+            ev = np.sort(np.concatenate([ev, noise], dtype=EVENT_CD), order="t", kind="stable")
         tracker.ingest(ev)
         est = tracker.step(1)
         seen = not sc.hidden(t) and _in_view(rect, points_model, T)
