@@ -6,6 +6,7 @@
 //! pure pinhole model. Events move from raw to rectified through [`UndistortLut`], built once.
 
 use crate::error::{ensure, Result};
+use crate::prefetch::prefetch;
 use nalgebra::{Matrix2, Vector2, Vector3};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -203,6 +204,9 @@ impl Camera {
     }
 }
 
+/// How far ahead [`UndistortLut::map_in_place`] prefetches, in pixels.
+const PREFETCH_PIXELS: usize = 16;
+
 /// Raw sensor pixel → rectified pixel index, built once per camera. Pixels whose rectified
 /// position falls outside the image map to [`UndistortLut::OUTSIDE`] and their events are dropped.
 #[derive(Debug, Clone)]
@@ -244,7 +248,27 @@ impl UndistortLut {
     /// Rectified pixel index of raw pixel (x, y), or `OUTSIDE`. The caller has validated bounds.
     #[inline]
     pub fn map(&self, x: u16, y: u16) -> u32 {
-        self.index[y as usize * self.width as usize + x as usize]
+        self.index[self.raw_index(x, y) as usize]
+    }
+
+    /// Raw pixel index y·W + x, the input of [`Self::map_in_place`]. The caller has validated
+    /// bounds.
+    #[inline]
+    pub fn raw_index(&self, x: u16, y: u16) -> u32 {
+        u32::from(y) * self.width + u32::from(x)
+    }
+
+    /// Replace each raw pixel index (from [`Self::raw_index`]) by its rectified index, as
+    /// [`Self::map`]. Events scattered over the sensor (a thinned stream, a cluttered scene) each
+    /// miss the cache on this 4-byte-per-pixel table (3.7 MB at 1280×720); knowing the indices
+    /// in advance, the entry a few events ahead is asked for early so the misses overlap.
+    pub fn map_in_place(&self, pixels: &mut [u32]) {
+        for i in 0..pixels.len() {
+            if let Some(&ahead) = pixels.get(i + PREFETCH_PIXELS) {
+                prefetch(self.index.as_ptr().wrapping_add(ahead as usize));
+            }
+            pixels[i] = self.index[pixels[i] as usize];
+        }
     }
 }
 
@@ -257,6 +281,25 @@ mod tests {
         assert!(Camera::new(640, 480, 0.0, 500.0, 320.0, 240.0, [0.0; 5]).is_err());
         assert!(Camera::new(640, 480, 500.0, f64::NAN, 320.0, 240.0, [0.0; 5]).is_err());
         assert!(Camera::new(0, 480, 500.0, 500.0, 320.0, 240.0, [0.0; 5]).is_err());
+    }
+
+    #[test]
+    fn mapping_in_place_is_the_per_pixel_map() {
+        let lut = UndistortLut::new(&Camera::imx636());
+        let mut rng = crate::rng::Rng::new(9);
+        let raw: Vec<(u16, u16)> = (0..200_000)
+            .map(|_| (rng.below(1280) as u16, rng.below(720) as u16))
+            .chain([(0, 0), (1279, 719)])
+            .collect();
+        let mut pixels: Vec<u32> = raw.iter().map(|&(x, y)| lut.raw_index(x, y)).collect();
+        lut.map_in_place(&mut pixels);
+        // The table's definition: entry y·W + x for raw pixel (x, y).
+        let expected: Vec<u32> = raw
+            .iter()
+            .map(|&(x, y)| lut.index[usize::from(y) * 1280 + usize::from(x)])
+            .collect();
+        assert_eq!(pixels, expected);
+        assert_eq!(pixels[pixels.len() - 1], lut.map(1279, 719));
     }
 
     #[test]

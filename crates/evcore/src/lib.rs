@@ -18,6 +18,7 @@ pub mod io;
 pub mod latency;
 pub mod mesh;
 pub mod pointset;
+mod prefetch;
 pub mod render;
 pub mod replay;
 pub mod rng;

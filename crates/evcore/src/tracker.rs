@@ -833,7 +833,7 @@ impl Ingest {
                 let i = index(j);
                 let (x, y) = events.xy(i);
                 self.recency.record(x, y, events.t_at(i));
-                self.pixels.push(self.lut.map(x, y));
+                self.pixels.push(self.lut.raw_index(x, y));
             }
         } else {
             // Every (1/keep)-th event: the loop runs over kept events only.
@@ -843,11 +843,14 @@ impl Ingest {
                 let i = index(pos as usize);
                 let (x, y) = events.xy(i);
                 self.recency.record(x, y, events.t_at(i));
-                self.pixels.push(self.lut.map(x, y));
+                self.pixels.push(self.lut.raw_index(x, y));
                 pos += step;
             }
             self.thinning.next_pos = pos - end;
         }
+        // A second pass, as the table lookups are cache misses that prefetching can overlap only
+        // when the kept events' pixels are known ahead.
+        self.lut.map_in_place(&mut self.pixels);
         let kept = self.pixels.len();
         // The writer skips OUTSIDE (≥ width·height) itself.
         self.writer.ingest(&self.pixels);
@@ -3219,6 +3222,81 @@ mod tests {
         core.reset_events();
         core.ingest(early.as_slice()).unwrap();
         assert_eq!(core.stats().events_ingested, 200);
+    }
+
+    /// The undistortion lookup moved to a prefetching second pass; the ingested state must be what
+    /// the event-by-event path (`lut.map` per kept event, straight into the writer) leaves.
+    #[test]
+    fn ingest_state_matches_the_event_by_event_path_thinned_and_whole() {
+        for limit in [IngestLimit::Off, IngestLimit::EventsPerSecond(3.3e6)] {
+            let (mut tracker, _, _) = core(limit);
+            let (mut reference, _, _) = core(IngestLimit::Off);
+            let cam = *tracker.camera();
+            let mut rng = crate::rng::Rng::new(5);
+            let mut t_us = 0;
+            let mut kept_total = 0;
+            for _ in 0..30 {
+                // 10 Mev/s over the whole sensor, ragged batch lengths.
+                let n = 2000 + rng.below(20_000) as usize;
+                let batch: Vec<EventCd> = (0..n)
+                    .map(|i| {
+                        let (x, y) = (rng.below(1280) as u16, rng.below(720) as u16);
+                        EventCd::new(x, y, (i % 2) as i16, t_us + i as i64 / 10)
+                    })
+                    .collect();
+                t_us += n as i64 / 10 + 1;
+                // Which events the thinning keeps: every (1/keep)-th from where the last batch left off.
+                let ing = &tracker.ingest;
+                let keep = ing
+                    .thinning
+                    .clone()
+                    .offer(n, batch[0].t, batch[n - 1].t, ing.last_t_us);
+                let mut kept = Vec::new();
+                let mut pos = ing.thinning.next_pos;
+                while pos < n as f64 {
+                    kept.push(batch[pos as usize]);
+                    pos += if keep >= 1.0 { 1.0 } else { 1.0 / keep };
+                }
+                tracker.ingest_thinned(batch.as_slice()).unwrap();
+                let r = &mut reference.ingest;
+                let pixels: Vec<u32> = kept
+                    .iter()
+                    .map(|e| {
+                        r.recency.record(e.x, e.y, e.t);
+                        r.lut.map(e.x, e.y)
+                    })
+                    .collect();
+                r.writer.ingest(&pixels);
+                kept_total += kept.len() as u64;
+            }
+            let stats = tracker.stats();
+            assert_eq!(stats.events_ingested, kept_total, "{limit:?}");
+            if matches!(limit, IngestLimit::Off) {
+                assert_eq!(stats.events_dropped, 0);
+            } else {
+                let kept = kept_total as f64 / stats.events_offered as f64;
+                assert!((0.25..0.4).contains(&kept), "kept fraction {kept}");
+            }
+            let roi = Roi::full(cam.width, cam.height);
+            let mut masks = [vec![0u8; roi.area()], vec![0u8; roi.area()]];
+            tracker.fill_mask(roi, &mut masks[0]);
+            reference.fill_mask(roi, &mut masks[1]);
+            assert!(masks[0].iter().filter(|&&m| m != 0).count() > 10_000);
+            assert!(
+                masks[0] == masks[1],
+                "{limit:?}: SCARF's active sets differ"
+            );
+            for v in 0..cam.height {
+                for u in 0..cam.width {
+                    let (u, v) = (u as f32, v as f32);
+                    assert_eq!(
+                        tracker.ingest.recency.last_us(u, v),
+                        reference.ingest.recency.last_us(u, v),
+                        "{limit:?}: recency at ({u}, {v})"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

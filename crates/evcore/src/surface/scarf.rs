@@ -35,6 +35,7 @@ use std::sync::Arc;
 use super::{check_grid, fill_roi, EventSurface};
 use crate::error::{ensure, Result};
 use crate::image::Roi;
+use crate::prefetch::prefetch;
 
 /// Block layout derived from the grid size, the requested block size and alpha (C++ `getScarfParams`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -318,18 +319,6 @@ impl Scarf {
 
 /// How far ahead of the event being inserted its pixel's word is prefetched, in events.
 const PREFETCH_EVENTS: usize = 16;
-
-/// Hint that `at` will be read soon; never faults, so any address (even past the end) is fine.
-#[inline(always)]
-fn prefetch<T>(at: *const T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch has no architectural effect and does not fault on any address.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(at.cast());
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = at;
-}
 
 impl ScarfWriter {
     /// Ingest events at rectified pixel indices; indices ≥ width·height are skipped.
