@@ -59,7 +59,7 @@ def scenarios(quick: bool = False) -> dict[str, EpisodeConfig]:
         ),
         "events-stop": replace(base, dropout_s=(t0, t0 + 0.5), duration_s=t0 + 1.1),
         "wrong-model": replace(base, model="drill", duration_s=1.0),
-        "pure-noise": replace(base, noise_s=(t0, t0 + 1.0), noise_rate_hz=1e7, duration_s=t0 + 1.2),
+        "pure-noise": replace(base, noise_s=(t0, t0 + 1.0), noise_rate_hz=1e7, duration_s=t0 + 1.6),
         "start-without-pose": replace(base, start_lost=True, duration_s=1.5),
     }
 
