@@ -188,8 +188,11 @@ def test_leave_return_dashes_out_and_comes_back_elsewhere():
     from evservo import trajectories
 
     traj = trajectories.make_trajectory("leave-return", speed_mps=1.5)
-    x = traj(np.linspace(0, 3, 301))[:, 0, 3]
+    p = traj(np.linspace(0, 4, 401))[:, :3, 3]
+    x = p @ trajectories.LEAVE_DIR  # across the view: no part along the start view's direction
+    assert abs(trajectories.LEAVE_DIR @ np.array([0.5, 0.75, 0.05])) < 0.01
     assert x.max() == pytest.approx(trajectories.LEAVE_M, abs=1e-9)
-    assert x[-1] == pytest.approx(-0.2 * trajectories.LEAVE_M, abs=1e-9)
+    assert x[-1] == pytest.approx(0.3 * trajectories.LEAVE_M, abs=1e-9)
+    assert p[-1, 2] == pytest.approx(-0.05, abs=1e-9)
     v = np.abs(np.diff(x)) / 0.01
     assert v.max() == pytest.approx(1.5, rel=0.02)

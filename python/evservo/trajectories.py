@@ -15,9 +15,11 @@ Kinds (peak speed along x ``speed_mps``, peak angular rate ``rot_rate_dps``):
   representations fade and SCARF does not).
 - ``reversal``: along x at constant speed, turning back abruptly at ±amplitude (a triangle wave).
 - ``leave-return``: leaves the view and comes back elsewhere (issue 12): after 0.2 s a dash of
-  :data:`LEAVE_M` along x at peak speed ``speed_mps``, faster than a camera can follow, then 0.4 s out
-  there, then back at half that speed to another place (``-0.2·LEAVE_M`` along x, 0.05 m along
-  z) turned by 25° about z, and rest.
+  :data:`LEAVE_M` across the view (along :data:`LEAVE_DIR`) at peak speed ``speed_mps``, faster than
+  a camera can follow, then 0.4 s out there, then back, at a peak of ``speed_mps`` or
+  :data:`RETURN_MPS` if slower, to another place (``0.3·LEAVE_M`` along :data:`LEAVE_DIR` and 0.05 m
+  down z from the start) turned by 25° about z, and rest: set down where a camera that braked after
+  following the dash for a moment sees it whole.
 - a CSV path with header ``t_s,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad`` (displacement, rotation vector),
   interpolated linearly (rotation by slerp) and held constant beyond its ends.
 """
@@ -37,7 +39,17 @@ KINDS = ("trans", "trans-rot", "circle", "figure8", "stop-go", "reversal", "leav
 #: Kinds whose object leaves a following camera's view (the episode then scores loss and re-lock).
 LEAVING_KINDS = ("leave-return",)
 #: How far ``leave-return`` dashes (m): beyond the view's half-width at 0.6 m (0.33 m on the IMX636).
-LEAVE_M = 0.5
+LEAVE_M = 0.7
+#: Which way (unit vector) ``leave-return`` dashes: across the view, both in the camera frame of an
+#: open-loop recording (no depth component) and in the closed-loop scene's world frame, where it is the
+#: start camera's x axis (``SceneConfig.view_dir_w`` is (0.5, 0.75, 0.05)). Along world x, as before,
+#: the dash also ran 0.28 m towards the camera, and at 1.5 m/s the target arm overshot it by 0.3 m:
+#: the object left the view by nearly touching the lens (Z 0.1 m) (benches/RESULTS.md, issue 12,
+#: "Round 15").
+LEAVE_DIR = np.array([-0.832, 0.555, 0.0]) / np.hypot(0.832, 0.555)
+#: Peak speed of ``leave-return``'s way back (m/s): slow enough that the target arm follows it and
+#: comes to rest where it is sent (at the dash's speed it swung 0.3–0.4 m past it and back).
+RETURN_MPS = 0.6
 CSV_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad")
 
 Trajectory = Callable[[np.ndarray], np.ndarray]
@@ -111,11 +123,12 @@ def _leave_return(t: np.ndarray, speed_mps: float) -> np.ndarray:
     1.5·d/T."""
     t_out = 1.5 * LEAVE_M / speed_mps
     t_back0 = 0.2 + t_out + 0.4
-    back = np.array([-0.2 * LEAVE_M, 0.0, 0.05])
-    t_back = 1.5 * float(np.linalg.norm(back - [LEAVE_M, 0, 0])) / (speed_mps / 2)
+    out = LEAVE_M * LEAVE_DIR
+    back = 0.3 * LEAVE_M * LEAVE_DIR - np.array([0.0, 0.0, 0.05])
+    t_back = 1.5 * float(np.linalg.norm(back - out)) / min(speed_mps, RETURN_MPS)
     s_out = _smoothstep((t - 0.2) / t_out)[:, None]
     s_back = _smoothstep((t - t_back0) / t_back)[:, None]
-    trans = (1 - s_back) * s_out * np.array([LEAVE_M, 0.0, 0.0]) + s_back * back
+    trans = (1 - s_back) * s_out * out + s_back * back
     rot = s_back * np.array([0.0, 0.0, np.deg2rad(25.0)])
     return _compose(trans, rot)
 
