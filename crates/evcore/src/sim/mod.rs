@@ -57,6 +57,7 @@
 //! read-out latency and bandwidth limits (ERC), and motion blur over the exposure.
 
 pub mod camera;
+mod ln;
 mod params;
 mod pixel;
 mod tiles;
@@ -340,12 +341,16 @@ impl EventSimulator {
         ensure(changed.len() == tx * ty, || {
             format!("{} tile flags for {tx}x{ty} tiles", changed.len())
         })?;
+        // A non-short-circuiting fold per segment vectorises (as in `check_frame`).
         let valid = frame.par_chunks(w).enumerate().all(|(y, row)| {
             let flags = &changed[y / TILE_PX as usize * tx..][..tx];
             row.chunks(SEGMENT_PX)
                 .zip(flags)
                 .filter(|(_, &f)| f)
-                .all(|(c, _)| c.iter().all(|v| (0.0..f32::INFINITY).contains(v)))
+                .all(|(c, _)| {
+                    c.iter()
+                        .fold(true, |ok, &v| ok & (0.0..f32::INFINITY).contains(&v))
+                })
         });
         ensure(valid, || {
             "frame intensities must be finite and >= 0 (linear intensity)".into()

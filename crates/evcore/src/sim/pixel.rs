@@ -2,6 +2,7 @@
 //! for one row of pixels over one frame interval. Rows are independent, so the caller runs
 //! them in parallel, each with its own random stream.
 
+use super::ln::ln;
 use crate::rng::Rng;
 
 /// `last_t_us` of a pixel that has never fired.
@@ -78,9 +79,11 @@ pub(super) struct Row {
 }
 
 /// Log intensity as the sensor model sees it; f32 because the frames are f32 and the state is
-/// stored in f32.
+/// stored in f32. Every path of the model takes it through [`ln`], which vectorises, so a pixel
+/// stepped in a segment's SIMD pass and one stepped alone see the same level.
+#[inline(always)]
 pub(super) fn log_intensity(i: f32, log_eps: f32) -> f32 {
-    (log_eps + i).ln()
+    ln(log_eps + i)
 }
 
 impl Row {
@@ -275,25 +278,30 @@ impl Row {
                 continue;
             }
             let t_from = self.seg_t_us[seg];
-            let mut due = NEVER_DUE;
+            let mut noisy = [false; SEGMENT_PX];
+            for s in &shots[first..k] {
+                noisy[s.col as usize - xs] = true;
+            }
+            let mut quiet = [false; SEGMENT_PX];
+            self.quiet_segment(&frame[xs..xe], xs, &noisy, t_from, iv, &mut quiet);
             let mut j = first;
-            for x in xs..xe {
+            for x in (xs..xe).filter(|x| !quiet[x - xs]) {
                 let idx = idx0 + x as u32;
+                while j < k && (shots[j].col as usize) < x {
+                    j += 1;
+                }
                 let end = shots[j..k]
                     .iter()
                     .position(|s| s.col as usize != x)
                     .map_or(k, |n| j + n);
-                if end > j || !self.quiet_pixel(x, frame[x], t_from, iv) {
-                    if t_from < iv.t0_us {
-                        self.catch_up(x, idx, t_from, iv);
-                    }
-                    self.step_pixel(x, idx, frame[x], &shots[j..end], iv);
+                if t_from < iv.t0_us {
+                    self.catch_up(x, idx, t_from, iv);
                 }
+                self.step_pixel(x, idx, frame[x], &shots[j..end], iv);
                 j = end;
-                due = due.min(self.leak_due_us(x, t1));
             }
             self.seg_t_us[seg] = t1;
-            self.seg_due_us[seg] = due;
+            self.seg_due_us[seg] = self.leak_due_us(xs..xe, t1);
         }
         self.shots = shots;
     }
@@ -316,47 +324,120 @@ impl Row {
         }
     }
 
-    /// The quiet-pixel test of [`Self::quiet_span`] for a pixel last updated at `t_from`: its path
-    /// is flat (plus leak) until `iv.t0_us`, then a straight line to `i1`, so it stays inside the
-    /// band iff both corners do. Updates the pixel and returns true if it fires nothing.
-    #[inline]
-    fn quiet_pixel(&mut self, x: usize, i1: f32, t_from: i64, iv: &Interval) -> bool {
-        let pl = self.prev_l[x];
-        let l1 = if i1.to_bits() == self.prev_i[x].to_bits() {
-            pl
+    /// The quiet-pixel test of [`Self::quiet_span`] for the pixels of one segment, columns
+    /// `xs .. xs + frame.len()`, last updated at `t_from`: a pixel's path is flat (plus leak)
+    /// until `iv.t0_us`, then a straight line to its new intensity, so it stays inside the band
+    /// iff both corners do. Updates each pixel that fires nothing and has no shot-noise arrival
+    /// (`noisy`), and sets its `quiet` flag; the others are left untouched for the full model.
+    /// Branch-free over the segment, so the compiler vectorises it (logarithm included): this
+    /// is the sensor's cost per changed pixel and tick.
+    fn quiet_segment(
+        &mut self,
+        frame: &[f32],
+        xs: usize,
+        noisy: &[bool; SEGMENT_PX],
+        t_from: i64,
+        iv: &Interval,
+        quiet: &mut [bool; SEGMENT_PX],
+    ) {
+        // A whole segment (all but a row's last if the width is not a multiple of SEGMENT_PX)
+        // has a constant trip count, which the compiler unrolls into straight SIMD code.
+        if frame.len() == SEGMENT_PX {
+            self.quiet_lanes(&frame[..SEGMENT_PX], xs, noisy, t_from, iv, quiet);
         } else {
-            log_intensity(i1, iv.log_eps)
-        };
-        let leak = f64::from(self.leak_per_us[x]);
-        let r = f64::from(self.ref_l[x]);
-        let (cp, cn) = (f64::from(self.c_pos[x]), f64::from(self.c_neg[x]));
-        let drift = leak * (iv.t0_us + iv.dt_us - t_from) as f64;
-        let d_mid = f64::from(pl) + leak * (iv.t0_us - t_from) as f64 - r;
-        let d_end = f64::from(l1) + drift - r;
-        // Up to date at t0, the start is inside the band by construction (as in `quiet_span`).
-        let quiet =
-            d_end < cp && -d_end < cn && (t_from == iv.t0_us || (d_mid < cp && -d_mid < cn));
-        if quiet {
-            self.prev_i[x] = i1;
-            self.prev_l[x] = l1;
-            self.ref_l[x] = (r - drift) as f32;
+            self.quiet_lanes(frame, xs, noisy, t_from, iv, quiet);
         }
-        quiet
     }
 
-    /// Earliest time (µs) at which leak alone can make pixel `x`, up to date at `t_us`, fire.
-    fn leak_due_us(&self, x: usize, t_us: i64) -> i64 {
-        let us_per_log = self.us_per_log_leak[x];
-        if us_per_log <= 0.0 {
+    /// [`Self::quiet_segment`]'s body, inlined at each length.
+    #[inline(always)]
+    fn quiet_lanes(
+        &mut self,
+        frame: &[f32],
+        xs: usize,
+        noisy: &[bool; SEGMENT_PX],
+        t_from: i64,
+        iv: &Interval,
+        quiet: &mut [bool; SEGMENT_PX],
+    ) {
+        let n = frame.len();
+        let mid_us = (iv.t0_us - t_from) as f64;
+        let end_us = (iv.t0_us + iv.dt_us - t_from) as f64;
+        // Up to date at t0, the start is inside the band by construction (as in `quiet_span`).
+        let fresh = t_from == iv.t0_us;
+        let prev_i = &mut self.prev_i[xs..xs + n];
+        let prev_l = &mut self.prev_l[xs..xs + n];
+        let ref_l = &mut self.ref_l[xs..xs + n];
+        let (c_pos, c_neg) = (&self.c_pos[xs..xs + n], &self.c_neg[xs..xs + n]);
+        let leak_per_us = &self.leak_per_us[xs..xs + n];
+        let (noisy, quiet) = (&noisy[..n], &mut quiet[..n]);
+        // The new levels first, in f32 lanes (an unchanged intensity keeps its level bit for bit).
+        let mut l1 = [0.0f32; SEGMENT_PX];
+        let l1 = &mut l1[..n];
+        for ((l, &i1), (&pi, &pl)) in l1
+            .iter_mut()
+            .zip(frame)
+            .zip(prev_i.iter().zip(prev_l.iter()))
+        {
+            let fresh_log = log_intensity(i1, iv.log_eps);
+            *l = if i1.to_bits() == pi.to_bits() {
+                pl
+            } else {
+                fresh_log
+            };
+        }
+        // The band test in f64 (as the full model's), the new reference with it.
+        let mut ref1 = [0.0f32; SEGMENT_PX];
+        let ref1 = &mut ref1[..n];
+        for c in 0..n {
+            let leak = f64::from(leak_per_us[c]);
+            let r = f64::from(ref_l[c]);
+            let (cp, cn) = (f64::from(c_pos[c]), f64::from(c_neg[c]));
+            let drift = leak * end_us;
+            let d_mid = f64::from(prev_l[c]) + leak * mid_us - r;
+            let d_end = f64::from(l1[c]) + drift - r;
+            quiet[c] = (d_end < cp) & (-d_end < cn) & (fresh | ((d_mid < cp) & (-d_mid < cn)));
+            ref1[c] = (r - drift) as f32;
+        }
+        // Selects, not a branch: stores of every lane keep the loop one SIMD block.
+        for c in 0..n {
+            let q = quiet[c] & !noisy[c];
+            quiet[c] = q;
+            prev_i[c] = if q { frame[c] } else { prev_i[c] };
+            prev_l[c] = if q { l1[c] } else { prev_l[c] };
+            ref_l[c] = if q { ref1[c] } else { ref_l[c] };
+        }
+    }
+
+    /// Earliest time (µs) at which leak alone can make one of the pixels `cols`, up to date at
+    /// `t_us`, fire ([`NEVER_DUE`] if leak cannot).
+    fn leak_due_us(&self, cols: std::ops::Range<usize>, t_us: i64) -> i64 {
+        let us_per_log = &self.us_per_log_leak[cols.clone()];
+        let (c_pos, prev_l, ref_l) = (
+            &self.c_pos[cols.clone()],
+            &self.prev_l[cols.clone()],
+            &self.ref_l[cols],
+        );
+        // The earliest wait first, one conversion after: truncating to µs and adding are
+        // monotone, so this is the minimum of the pixels' due times.
+        let mut soonest = f64::INFINITY;
+        for c in 0..us_per_log.len() {
+            let gap = f64::from(c_pos[c]) - (f64::from(prev_l[c]) - f64::from(ref_l[c]));
+            // Within a few ulps of the quotient: nothing beside the slack, worth
+            // DUE_SLACK_LOG / leak µs. Negative waits (and NaN) are lifted to 0.
+            let wait = ((gap - DUE_SLACK_LOG) * us_per_log[c]).max(0.0);
+            soonest = soonest.min(if us_per_log[c] > 0.0 {
+                wait
+            } else {
+                f64::INFINITY
+            });
+        }
+        if soonest == f64::INFINITY {
             return NEVER_DUE;
         }
-        let gap = f64::from(self.c_pos[x]) - (f64::from(self.prev_l[x]) - f64::from(self.ref_l[x]));
-        // Within a few ulps of the quotient: nothing beside the slack, worth DUE_SLACK_LOG / leak µs.
-        let wait = (gap - DUE_SLACK_LOG) * us_per_log;
-        // The cast truncates, which is ⌊wait⌋ once negatives (and NaN) are lifted to 0: no libm
-        // `floor` call (without SSE4.1) for every pixel of every visited segment. Saturating: a
-        // far-off crossing becomes "never" in practice.
-        t_us.saturating_add(wait.max(0.0) as i64)
+        // The cast truncates, which is ⌊wait⌋ for a wait ≥ 0, and saturates: a far-off
+        // crossing becomes "never" in practice.
+        t_us.saturating_add(soonest as i64)
     }
 
     /// Update the pixels of columns `x .. x + frame.len()` whose level stays strictly inside
