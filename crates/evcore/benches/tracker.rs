@@ -13,6 +13,7 @@ use clock::BenchClock;
 use common::{pose, textured_box};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use evcore::clock::thread_cpu_ns;
+use evcore::confidence::{evidence, Query};
 use evcore::field::{DistanceField, FieldParams};
 use evcore::pointset::{extract_point_set, PointSetParams};
 use evcore::rng::Rng;
@@ -294,6 +295,25 @@ fn bench(c: &mut Criterion<BenchClock>) {
             })
         });
     }
+    // The evidence a tracked update scores its pose by (support and chance level over the roi).
+    let query = Query {
+        inlier_px: TrackerConfig::default().inlier_px,
+        region: roi,
+        image: (rect.width, rect.height),
+        fresh_since: None,
+        explain: false,
+    };
+    c.bench_function("evidence_roi", |b| {
+        b.iter(|| {
+            evidence(
+                field.level(0),
+                &pins[0],
+                &Rigid32::from_pose(black_box(&off)),
+                &points,
+                &query,
+            )
+        })
+    });
     let levels: Vec<_> = (0..3u32)
         .rev()
         .map(|l| (field.level(l), pins[l as usize]))
