@@ -1,7 +1,10 @@
 //! Per-update costs of the tracker at the paper's working point: the printed box at Z = 0.6 m on
 //! the 1280×720 IMX636, ~1000 model points, the SCARF active set holding the box's edges plus
 //! 20 % noise. An *update* is one published pose: the field rebuilt from the active set, then one
-//! LM or one search step. Also the solver steps alone on a fixed field.
+//! LM or one search step. Also the solver steps alone on a fixed field, and EDFT⁺'s update in
+//! clutter (`tracker/update_edft+_clutter`): the same box, but the active set refilled before each
+//! update by a 1 ms batch of the rendered drill episode's rate, most of it a textured background
+//! sliding past (the camera moves) — the ROI full of events, as in the closed loop.
 
 mod clock;
 mod common;
@@ -9,6 +12,8 @@ mod common;
 use clock::BenchClock;
 use common::{pose, textured_box};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use evcore::clock::thread_cpu_ns;
+use evcore::confidence::{evidence, Query};
 use evcore::field::{DistanceField, FieldParams};
 use evcore::pointset::{extract_point_set, PointSetParams};
 use evcore::rng::Rng;
@@ -20,10 +25,20 @@ use evcore::tracker::{TrackerConfig, TrackerCore};
 use evcore::{Camera, EventBatch, Roi};
 use nalgebra::{Translation3, Vector6};
 use std::hint::black_box;
+use std::time::Duration;
 
-/// Events on every edge pixel of the box at `pose` (raw sensor pixels), in random order, plus
-/// 20 % uniform noise.
-fn edge_events(cam: &Camera, mesh: &evcore::mesh::Mesh, seed: u64) -> EventBatch {
+/// Events per 1 ms batch of the cluttered stream (20 Mev/s, the rendered drill episode's rate
+/// between its peaks) and its shares: the box's edges, the background's edges, uniform noise.
+const CLUTTER_EVENTS_PER_MS: usize = 20_000;
+const CLUTTER_BOX_SHARE: f64 = 0.2;
+const CLUTTER_NOISE_SHARE: f64 = 0.1;
+/// Distinct batches cycled through (32 ms of stream).
+const CLUTTER_BATCHES: usize = 32;
+/// How far the background slides per batch (px per ms: 1000 px/s).
+const CLUTTER_SHIFT_PX_PER_MS: usize = 1;
+
+/// The box's edge pixels at `pose` (raw sensor pixels).
+fn box_edge_pixels(cam: &Camera, mesh: &evcore::mesh::Mesh) -> Vec<(u16, u16)> {
     let dense = PointSetParams {
         max_points: 100_000,
         ..PointSetParams::default()
@@ -32,7 +47,7 @@ fn edge_events(cam: &Camera, mesh: &evcore::mesh::Mesh, seed: u64) -> EventBatch
         .expect("points")
         .points_o;
     let rig = Rigid32::from_pose(&pose());
-    let mut px: Vec<(u16, u16)> = points
+    points
         .iter()
         .filter_map(|&x| {
             let p = rig.apply(x);
@@ -45,7 +60,12 @@ fn edge_events(cam: &Camera, mesh: &evcore::mesh::Mesh, seed: u64) -> EventBatch
             (u >= 0.0 && v >= 0.0 && u < f64::from(cam.width) && v < f64::from(cam.height))
                 .then_some((u as u16, v as u16))
         })
-        .collect();
+        .collect()
+}
+
+/// Events on every edge pixel of the box at `pose`, in random order, plus 20 % uniform noise.
+fn edge_events(cam: &Camera, box_px: &[(u16, u16)], seed: u64) -> EventBatch {
+    let mut px = box_px.to_vec();
     let mut rng = Rng::new(seed);
     let n_noise = px.len() / 5;
     for _ in 0..n_noise {
@@ -64,13 +84,77 @@ fn edge_events(cam: &Camera, mesh: &evcore::mesh::Mesh, seed: u64) -> EventBatch
     batch
 }
 
+/// Pixels (raw sensor) where a background of random grey cells, 6–29 px on a side, slid
+/// `shift_px` to the left, has an edge: a cell boundary between two different greys.
+fn background_edges(cam: &Camera, shift_px: usize, seed: u64) -> Vec<(u16, u16)> {
+    let mut rng = Rng::new(seed);
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let span = w + CLUTTER_SHIFT_PX_PER_MS * CLUTTER_BATCHES;
+    let mut cells = |n: usize| {
+        let mut id = Vec::with_capacity(n);
+        let mut k = 0u32;
+        while id.len() < n {
+            let len = 6 + rng.below(24) as usize;
+            id.extend(std::iter::repeat_n(k, len));
+            k += 1;
+        }
+        id.truncate(n);
+        id
+    };
+    let (col, row) = (cells(span), cells(h));
+    let grey = |x: usize, y: usize| {
+        let mut r = Rng::new(seed ^ (u64::from(col[x]) << 32) ^ u64::from(row[y]));
+        r.below(4)
+    };
+    let mut px = Vec::new();
+    for y in 1..h {
+        for x in 1..w {
+            let tx = x + shift_px;
+            let g = grey(tx, y);
+            if g != grey(tx - 1, y) || g != grey(tx, y - 1) {
+                px.push((x as u16, y as u16));
+            }
+        }
+    }
+    px
+}
+
+/// The cluttered stream: [`CLUTTER_BATCHES`] batches of 1 ms, each the box's edge pixels, the
+/// background's edges at that batch's slide and uniform noise, drawn at random in their shares.
+fn clutter_stream(cam: &Camera, box_px: &[(u16, u16)], seed: u64) -> Vec<EventBatch> {
+    let mut rng = Rng::new(seed);
+    (0..CLUTTER_BATCHES)
+        .map(|b| {
+            let back = background_edges(cam, b * CLUTTER_SHIFT_PX_PER_MS, seed);
+            let mut batch = EventBatch::with_capacity(CLUTTER_EVENTS_PER_MS);
+            for i in 0..CLUTTER_EVENTS_PER_MS {
+                let r = rng.uniform();
+                let (x, y) = if r < CLUTTER_BOX_SHARE {
+                    box_px[rng.below(box_px.len() as u64) as usize]
+                } else if r < CLUTTER_BOX_SHARE + CLUTTER_NOISE_SHARE {
+                    (
+                        rng.below(u64::from(cam.width)) as u16,
+                        rng.below(u64::from(cam.height)) as u16,
+                    )
+                } else {
+                    back[rng.below(back.len() as u64) as usize]
+                };
+                let t_us = (b * 1000 + i * 1000 / CLUTTER_EVENTS_PER_MS) as i64;
+                batch.push(x, y, (i % 2) as i16, t_us);
+            }
+            batch
+        })
+        .collect()
+}
+
 fn bench(c: &mut Criterion<BenchClock>) {
     let cam = Camera::imx636();
     let mesh = textured_box([0.16, 0.21, 0.06], 1);
     let points = extract_point_set(&mesh, &cam.rectified(), &pose(), &PointSetParams::default())
         .expect("S*")
         .points_o;
-    let events = edge_events(&cam, &mesh, 7);
+    let box_px = box_edge_pixels(&cam, &mesh);
+    let events = edge_events(&cam, &box_px, 7);
     eprintln!(
         "{} model points, {} events in the active set input",
         points.len(),
@@ -98,6 +182,40 @@ fn bench(c: &mut Criterion<BenchClock>) {
             })
         });
     }
+    // In clutter: a fresh batch before each update (not timed), the update on the thread's CPU
+    // clock.
+    let mut batches = clutter_stream(&cam, &box_px, 5);
+    let mut clutter =
+        TrackerCore::new(&cam, points.clone(), start, TrackerConfig::default()).expect("core");
+    for b in &batches {
+        clutter.ingest(b).expect("ingest");
+    }
+    let mut next = CLUTTER_BATCHES;
+    group.bench_function("update_edft+_clutter", |b| {
+        b.iter_custom(|iters| {
+            let mut cpu_ns = 0;
+            for _ in 0..iters {
+                if next == CLUTTER_BATCHES {
+                    for batch in batches.iter_mut() {
+                        batch
+                            .t_us
+                            .iter_mut()
+                            .for_each(|t| *t += (CLUTTER_BATCHES * 1000) as i64);
+                    }
+                    next = 0;
+                }
+                clutter.ingest(&batches[next]).expect("ingest");
+                next += 1;
+                if clutter.latest().seq.is_multiple_of(50) {
+                    clutter.reset_pose(start).expect("pose");
+                }
+                let t0 = thread_cpu_ns();
+                black_box(clutter.step());
+                cpu_ns += thread_cpu_ns() - t0;
+            }
+            Duration::from_nanos(cpu_ns)
+        })
+    });
     group.finish();
 
     // The pieces on a fixed field.
@@ -122,7 +240,16 @@ fn bench(c: &mut Criterion<BenchClock>) {
         let row = (y * rect.width + roi.x0) as usize;
         mask.extend_from_slice(&mask_full[row..row + roi.width as usize]);
     }
-    eprintln!("ROI {}x{}", roi.width, roi.height);
+    let active = |m: &[u8]| m.iter().filter(|&&a| a != 0).count() as f64 / m.len() as f64;
+    let mut clutter_mask = vec![0u8; roi.area()];
+    clutter.fill_mask(roi, &mut clutter_mask);
+    eprintln!(
+        "ROI {}x{}: {:.1} % active, {:.1} % in clutter",
+        roi.width,
+        roi.height,
+        100.0 * active(&mask),
+        100.0 * active(&clutter_mask)
+    );
     let mut fill_core =
         TrackerCore::new(&cam, points.clone(), pose(), TrackerConfig::default()).expect("core");
     fill_core.ingest(&events).expect("ingest");
@@ -168,6 +295,25 @@ fn bench(c: &mut Criterion<BenchClock>) {
             })
         });
     }
+    // The evidence a tracked update scores its pose by (support and chance level over the roi).
+    let query = Query {
+        inlier_px: TrackerConfig::default().inlier_px,
+        region: roi,
+        image: (rect.width, rect.height),
+        fresh_since: None,
+        explain: false,
+    };
+    c.bench_function("evidence_roi", |b| {
+        b.iter(|| {
+            evidence(
+                field.level(0),
+                &pins[0],
+                &Rigid32::from_pose(black_box(&off)),
+                &points,
+                &query,
+            )
+        })
+    });
     let levels: Vec<_> = (0..3u32)
         .rev()
         .map(|l| (field.level(l), pins[l as usize]))

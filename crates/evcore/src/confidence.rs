@@ -329,11 +329,16 @@ pub(crate) fn explained_fraction(
 /// known).
 fn chance_level(level: &FieldLevel, region: Roi, inlier_px: f32) -> (f32, f32) {
     #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx512f") {
+        // SAFETY: the CPU has AVX-512F.
+        return unsafe { chance_level_avx512(level, region, inlier_px) };
+    }
+    #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2.
         return unsafe { chance_level_avx2(level, region, inlier_px) };
     }
-    chance_level_in::<false>(level, region, inlier_px)
+    chance_level_in::<1>(level, region, inlier_px)
 }
 
 /// [`chance_level`] compiled for AVX2, counting eight values to a comparison (integer counts:
@@ -341,11 +346,21 @@ fn chance_level(level: &FieldLevel, region: Roi, inlier_px: f32) -> (f32, f32) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn chance_level_avx2(level: &FieldLevel, region: Roi, inlier_px: f32) -> (f32, f32) {
-    chance_level_in::<true>(level, region, inlier_px)
+    chance_level_in::<8>(level, region, inlier_px)
 }
 
+/// [`chance_level`] compiled for AVX-512F, sixteen values to a comparison straight into a mask
+/// register, the odd lanes masked out by the comparison itself (the same counts).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn chance_level_avx512(level: &FieldLevel, region: Roi, inlier_px: f32) -> (f32, f32) {
+    chance_level_in::<16>(level, region, inlier_px)
+}
+
+/// `LANES`: 1 (portable), 8 (only from [`chance_level_avx2`]) or 16 (only from
+/// [`chance_level_avx512`]).
 #[inline(always)]
-fn chance_level_in<const WIDE: bool>(
+fn chance_level_in<const LANES: usize>(
     level: &FieldLevel,
     region: Roi,
     inlier_px: f32,
@@ -364,7 +379,7 @@ fn chance_level_in<const WIDE: bool>(
     let (mut near, mut tight) = (0usize, 0usize);
     for y in (y0..y1).step_by(CHANCE_STRIDE) {
         let row = &level.value[(y - lr.y0) as usize * w..][..w];
-        let (n, t) = count_strided::<WIDE>(
+        let (n, t) = count_strided::<LANES>(
             &row[(x0 - lr.x0) as usize..(x1 - lr.x0) as usize],
             inlier_px,
         );
@@ -375,19 +390,34 @@ fn chance_level_in<const WIDE: bool>(
     (frac(near), frac(tight))
 }
 
-/// How many of `row[0]`, `row[CHANCE_STRIDE]`, … are ≤ `inlier_px` and ≤ [`TIGHT_PX`]. `WIDE` only
-/// from [`chance_level_avx2`].
+/// How many of `row[0]`, `row[CHANCE_STRIDE]`, … are ≤ `inlier_px` and ≤ [`TIGHT_PX`]. `LANES` as
+/// in [`chance_level_in`].
 #[inline(always)]
-fn count_strided<const WIDE: bool>(row: &[f32], inlier_px: f32) -> (usize, usize) {
+fn count_strided<const LANES: usize>(row: &[f32], inlier_px: f32) -> (usize, usize) {
     let (mut near, mut tight) = (0usize, 0usize);
     let mut done = 0;
     #[cfg(target_arch = "x86_64")]
-    if WIDE && CHANCE_STRIDE == 2 {
+    if LANES == 16 && CHANCE_STRIDE == 2 {
+        use std::arch::x86_64::*;
+        // The even lanes of each group of sixteen (a group starts at an even offset).
+        const EVEN: __mmask16 = 0x5555;
+        done = row.len() / 16 * 16;
+        // SAFETY: LANES = 16 only in `chance_level_avx512` (AVX-512F present); the loads read
+        // the first `done` ≤ row.len() values.
+        unsafe {
+            let (a, b) = (_mm512_set1_ps(inlier_px), _mm512_set1_ps(TIGHT_PX));
+            for i in (0..done).step_by(16) {
+                let v = _mm512_loadu_ps(row.as_ptr().add(i));
+                near += _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(EVEN, v, a).count_ones() as usize;
+                tight += _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(EVEN, v, b).count_ones() as usize;
+            }
+        }
+    } else if LANES == 8 && CHANCE_STRIDE == 2 {
         use std::arch::x86_64::*;
         // The even lanes of each group of eight (a group starts at an even offset).
         const EVEN: i32 = 0b0101_0101;
         done = row.len() / 8 * 8;
-        // SAFETY: WIDE is only set in `chance_level_avx2` (AVX2 present); the loads read the
+        // SAFETY: LANES = 8 only in `chance_level_avx2` (AVX2 present); the loads read the
         // first `done` ≤ row.len() values.
         unsafe {
             let (a, b) = (_mm256_set1_ps(inlier_px), _mm256_set1_ps(TIGHT_PX));
@@ -416,8 +446,8 @@ mod tests {
     use crate::solve::cost::testing;
     use nalgebra::{Isometry3, Vector3};
 
-    /// The AVX2 count of the chance level agrees with the scalar one, at odd and even offsets and
-    /// widths, with regions reaching past the level's.
+    /// The AVX2 and AVX-512 counts of the chance level agree with the scalar one, at odd and even
+    /// offsets and widths, with regions reaching past the level's.
     #[test]
     fn chance_level_counts_the_same_in_every_width() {
         let mut rng = Rng::new(11);
@@ -444,11 +474,17 @@ mod tests {
                 height: 1 + rng.below(60) as u32,
             };
             let inlier = [0.5, 1.5, 2.0, 3.0][rng.below(4) as usize];
-            let plain = chance_level_in::<false>(&level, region, inlier);
+            let plain = chance_level_in::<1>(&level, region, inlier);
             #[cfg(target_arch = "x86_64")]
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: the CPU has AVX2.
                 let wide = unsafe { chance_level_avx2(&level, region, inlier) };
+                assert_eq!(plain, wide, "{region:?} {inlier}");
+            }
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has AVX-512F.
+                let wide = unsafe { chance_level_avx512(&level, region, inlier) };
                 assert_eq!(plain, wide, "{region:?} {inlier}");
             }
         }
