@@ -88,6 +88,18 @@ const STREAM_FIXED_PATTERN: u64 = 0x5EED_F1E1D;
 const STREAM_SHOT: u64 = 0x5EED_5407;
 const STREAM_HOT: u64 = 0x5EED_4077;
 
+/// Whether every value of `c` is a linear intensity: finite and ≥ 0 ([0, ∞) excludes NaN and
+/// infinities). A non-short-circuiting fold, so it vectorises.
+fn intensities_valid(c: &[f32]) -> bool {
+    c.iter()
+        .fold(true, |ok, &v| ok & (0.0..f32::INFINITY).contains(&v))
+}
+
+/// The error of a frame that [`intensities_valid`] refuses.
+fn invalid_intensities() -> String {
+    "frame intensities must be finite and >= 0 (linear intensity)".into()
+}
+
 /// Generator for one (seed, purpose, a, b) tuple; splitmix64's finaliser decorrelates nearby keys.
 fn stream(seed: u64, purpose: u64, a: u64, b: u64) -> Rng {
     fn mix(mut x: u64) -> u64 {
@@ -341,20 +353,14 @@ impl EventSimulator {
         ensure(changed.len() == tx * ty, || {
             format!("{} tile flags for {tx}x{ty} tiles", changed.len())
         })?;
-        // A non-short-circuiting fold per segment vectorises (as in `check_frame`).
         let valid = frame.par_chunks(w).enumerate().all(|(y, row)| {
             let flags = &changed[y / TILE_PX as usize * tx..][..tx];
             row.chunks(SEGMENT_PX)
                 .zip(flags)
                 .filter(|(_, &f)| f)
-                .all(|(c, _)| {
-                    c.iter()
-                        .fold(true, |ok, &v| ok & (0.0..f32::INFINITY).contains(&v))
-                })
+                .all(|(c, _)| intensities_valid(c))
         });
-        ensure(valid, || {
-            "frame intensities must be finite and >= 0 (linear intensity)".into()
-        })?;
+        ensure(valid, invalid_intensities)?;
         let iv = self.interval(t_us)?;
         let (seed, k) = (self.params.seed, self.step_index);
         self.rows
@@ -377,14 +383,10 @@ impl EventSimulator {
         ensure(frame.len() == n, || {
             format!("frame has {} values, expected {w}x{h} = {n}", frame.len())
         })?;
-        // A non-short-circuiting fold per chunk vectorises; [0, ∞) excludes NaN and infinities.
-        let valid = |c: &[f32]| {
-            c.iter()
-                .fold(true, |ok, &v| ok & (0.0..f32::INFINITY).contains(&v))
-        };
-        ensure(frame.par_chunks(1 << 14).all(valid), || {
-            "frame intensities must be finite and >= 0 (linear intensity)".into()
-        })
+        ensure(
+            frame.par_chunks(1 << 14).all(intensities_valid),
+            invalid_intensities,
+        )
     }
 
     fn interval(&self, t_us: i64) -> Result<Interval> {
