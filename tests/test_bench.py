@@ -19,6 +19,9 @@ def test_latency_suite_quick_writes_a_complete_report(tmp_path):
     for r in rows:
         assert r["updates_per_s"] > 0 and r["events_pushed"] > 0
         assert math.isfinite(r["latency_p50_ms"]) and r["latency_p99_ms"] >= r["latency_p50_ms"]
+        # Each batch's own latency: at least the newest stamp's of its pose, at most the pose's bound.
+        assert r["event_p50_ms"] <= r["event_p99_ms"] <= r["event_max_ms"] <= r["oldest_max_ms"]
+        assert r["latency_max_ms"] <= r["event_max_ms"]
     for solver, c in result["step_costs"].items():
         assert c["updates_per_s"] > 0, solver
     assert result["simulator"]["mev_per_s"] > 0

@@ -91,7 +91,7 @@ def test_stats_are_live_while_the_thread_runs(camera, still_box):
 def test_latency_is_booked_for_every_batch_and_bounds_each_pose(camera, still_box):
     T, px = still_box
     trk = evservo.Tracker(camera, "box", T, ingest_core_share=None)
-    assert trk.latency()["oldest_n"] == 0 and trk.latency()["oldest_p99_s"] is None
+    assert trk.latency()["oldest_n"] == trk.latency()["batch_n"] == 0 and trk.latency()["batch_p99_s"] is None
     with trk:
         trk.start()
         pushed = []
@@ -103,10 +103,13 @@ def test_latency_is_booked_for_every_batch_and_bounds_each_pose(camera, still_bo
         waited = time.perf_counter() - pushed[0]
         lat = trk.latency()
         est = trk.latest()
-    # Every batch is booked once under the oldest stamp; at most one sample per batch newest.
-    assert lat["oldest_n"] == 20 and 1 <= lat["newest_n"] <= 20
+    # Every batch is booked once under the oldest stamp and once at its own latency, which lies
+    # between the newest stamp's and the bound; at most one sample per batch newest.
+    assert lat["oldest_n"] == lat["batch_n"] == 20 and 1 <= lat["newest_n"] <= 20
     assert 0 < lat["oldest_p50_s"] <= lat["oldest_p99_s"] <= lat["oldest_max_s"] <= waited
-    assert lat["newest_max_s"] <= lat["oldest_max_s"]
+    assert 0 < lat["batch_p50_s"] <= lat["batch_p99_s"] <= lat["batch_max_s"] <= lat["oldest_max_s"]
+    assert lat["batch_p50_s"] <= lat["oldest_p50_s"]
+    assert lat["newest_max_s"] <= lat["batch_max_s"]
     # A pose's oldest batch is no newer than its newest one.
     if est.oldest_latency_s is not None:
         assert est.oldest_pushed_ns <= est.pushed_ns and est.oldest_latency_s >= est.latency_s

@@ -374,10 +374,12 @@ class Tracker:
 
     def latency(self) -> dict[str, float | None]:
         """Event-to-pose latency booked by the tracker itself (seconds; see ``Estimate.latency_s``
-        and ``Estimate.oldest_latency_s``): ``newest_*`` over the batches that were the newest event
-        behind some pose, ``oldest_*`` a bound for every batch (publication of the first pose that
-        contains it minus the push of the oldest batch that pose took in). Keys ``*_n`` (samples),
-        ``*_p50_s``, ``*_p99_s``, ``*_max_s`` (None before any sample)."""
+        and ``Estimate.oldest_latency_s``): ``batch_*`` over every pushed batch (publication of the
+        first pose that contains it minus its own push: the latency of each of its events),
+        ``newest_*`` over the batches that were the newest event behind some pose, ``oldest_*`` a
+        bound for every batch (the same publication minus the push of the oldest batch that pose
+        took in). Keys ``*_n`` (samples), ``*_p50_s``, ``*_p99_s``, ``*_max_s`` (None before any
+        sample)."""
         return self._core.latency()
 
     def projected_points(self) -> np.ndarray:

@@ -2,40 +2,77 @@
 //! contain, and a histogram of latencies a solver thread writes and any thread reads.
 //!
 //! [`PendingBatches`] is the hand-over between the two halves of a tracker. Ingest marks every
-//! batch it has fully inserted (its push stamp and a count); the solver claims them all at the
-//! start of a step with one swap. Because the mark follows the insert, every claimed batch is in
-//! the active set the step reads, so `published − oldest claimed push` bounds the latency of every
-//! event the pose is the first to use; a batch marked just after a claim only makes the next pose's
-//! bound larger, never smaller.
+//! batch it has fully inserted (its push stamp); the solver claims them all at the start of a
+//! step. Because the mark follows the insert, every claimed batch is in the active set the step
+//! reads, so `published − push` is the latency of every event of a claimed batch (the events of
+//! one batch are handed over together), and `published − oldest claimed push` bounds them all.
+//! A batch marked just after a claim is booked by the next pose, never by an earlier one.
+//!
+//! The stamps of the last [`STAMP_RING`] batches are kept by mark order so that each claimed
+//! batch is booked with its own latency. Only a solver that has claimed nothing for that many
+//! batches loses stamps; those batches are booked at the claim's bound instead.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// Bits of [`PendingBatches`]' word holding the push stamp (ns): 2^52 ns is 52 days of uptime.
+/// Bits of [`PendingBatches`]' words holding the push stamp (ns): 2^52 ns is 52 days of uptime.
 const STAMP_BITS: u32 = 52;
 const STAMP_MASK: u64 = (1 << STAMP_BITS) - 1;
 /// The count saturates here (the top 12 bits).
 const MAX_COUNT: u64 = (1 << (64 - STAMP_BITS)) - 1;
+/// Push stamps kept by mark order: 4096 batches, 2 s of 0.5 ms batches. A slot's top 12 bits hold
+/// the lap (mark number / ring size) it was written in, so a reader tells a stamp overwritten by a
+/// later lap from its own without a lock.
+const STAMP_RING: u64 = 1 << (64 - STAMP_BITS);
 
 /// Batches ingested but not yet claimed by a step: the push stamp of the oldest and how many, in
-/// one word so that a claim takes both at once.
-#[derive(Debug, Default)]
-pub struct PendingBatches(AtomicU64);
+/// one word so that a claim takes both at once, and the stamps of the last [`STAMP_RING`] batches
+/// by mark order. One producer marks, one solver claims.
+#[derive(Debug)]
+pub struct PendingBatches {
+    word: AtomicU64,
+    /// Slot `k % STAMP_RING` holds the stamp of the `k`-th batch marked and its lap.
+    stamps: Box<[AtomicU64]>,
+    /// Batches marked so far (stored after their slot).
+    marked: AtomicU64,
+    /// Batches claimed so far (the claimant's own count, shared so that a rebuilt solver goes on
+    /// where the last one stopped).
+    claimed: AtomicU64,
+}
+
+impl Default for PendingBatches {
+    fn default() -> Self {
+        Self {
+            word: AtomicU64::new(0),
+            stamps: (0..STAMP_RING).map(|_| AtomicU64::new(0)).collect(),
+            marked: AtomicU64::new(0),
+            claimed: AtomicU64::new(0),
+        }
+    }
+}
 
 /// What one claim took: how many batches (saturating at 4095) and the oldest one's push stamp
-/// ([`crate::clock::now_ns`], ns); `count == 0` when none were pending.
+/// ([`crate::clock::now_ns`], ns); `count == 0` when none were pending. `first..end` are the mark
+/// numbers of the batches whose own stamps it books (see [`PendingBatches::claimed_stamps`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Claim {
     pub count: u64,
     pub oldest_pushed_ns: u64,
+    pub first: u64,
+    pub end: u64,
 }
 
 impl PendingBatches {
     /// Mark one batch pushed at `pushed_ns` (non-zero) as ingested. Release: whoever claims it
-    /// also sees its events.
+    /// also sees its events. Called by one producer at a time.
     pub fn mark(&self, pushed_ns: u64) {
         let stamp = pushed_ns & STAMP_MASK;
+        let k = self.marked.load(Ordering::Relaxed);
+        let lap = (k / STAMP_RING) & MAX_COUNT;
+        self.stamps[(k % STAMP_RING) as usize]
+            .store((lap << STAMP_BITS) | stamp, Ordering::Relaxed);
+        self.marked.store(k + 1, Ordering::Release);
         let _ = self
-            .0
+            .word
             .fetch_update(Ordering::Release, Ordering::Relaxed, |word| {
                 let (count, oldest) = (word >> STAMP_BITS, word & STAMP_MASK);
                 let oldest = if count == 0 { stamp } else { oldest };
@@ -45,11 +82,32 @@ impl PendingBatches {
 
     /// Take every pending batch.
     pub fn claim(&self) -> Claim {
-        let word = self.0.swap(0, Ordering::Acquire);
+        // The word first, then the mark count: every batch marked below `end` but one has updated
+        // the word by then, so a batch whose stamp is lost is under this claim's bound.
+        let word = self.word.swap(0, Ordering::Acquire);
+        let end = self.marked.load(Ordering::Acquire);
+        let first = self.claimed.swap(end, Ordering::Relaxed);
         Claim {
             count: word >> STAMP_BITS,
             oldest_pushed_ns: word & STAMP_MASK,
+            first,
+            end,
         }
+    }
+
+    /// The push stamp of each batch `claim` booked, oldest first; None for a batch whose stamp a
+    /// later one overwrote (the solver claimed nothing for [`STAMP_RING`] batches).
+    pub fn claimed_stamps(&self, claim: &Claim) -> impl Iterator<Item = Option<u64>> + '_ {
+        let kept_from = claim.end.saturating_sub(STAMP_RING);
+        let (first, end) = (claim.first.min(claim.end), claim.end);
+        (first..end).map(move |k| {
+            if k < kept_from {
+                return None;
+            }
+            let slot = self.stamps[(k % STAMP_RING) as usize].load(Ordering::Relaxed);
+            let lap = (k / STAMP_RING) & MAX_COUNT;
+            (slot >> STAMP_BITS == lap).then_some(slot & STAMP_MASK)
+        })
     }
 }
 
@@ -143,26 +201,43 @@ mod tests {
         p.mark(500);
         p.mark(700);
         p.mark(900);
-        assert_eq!(
-            p.claim(),
-            Claim {
-                count: 3,
-                oldest_pushed_ns: 500
-            }
-        );
-        assert_eq!(p.claim().count, 0, "claimed batches are gone");
+        let c = p.claim();
+        assert_eq!((c.count, c.oldest_pushed_ns), (3, 500));
+        let own: Vec<_> = p.claimed_stamps(&c).collect();
+        assert_eq!(own, [Some(500), Some(700), Some(900)]);
+        let none = p.claim();
+        assert_eq!(none.count, 0, "claimed batches are gone");
+        assert_eq!(p.claimed_stamps(&none).count(), 0);
         p.mark(1000);
-        assert_eq!(p.claim().oldest_pushed_ns, 1000);
+        let c = p.claim();
+        assert_eq!(c.oldest_pushed_ns, 1000);
+        assert_eq!(p.claimed_stamps(&c).collect::<Vec<_>>(), [Some(1000)]);
         for k in 0..5000 {
             p.mark(2000 + k);
         }
-        assert_eq!(
-            p.claim(),
-            Claim {
-                count: MAX_COUNT,
-                oldest_pushed_ns: 2000
-            }
-        );
+        let c = p.claim();
+        assert_eq!((c.count, c.oldest_pushed_ns), (MAX_COUNT, 2000));
+        // The ring keeps the last 4096 stamps; the 904 before them are lost, not misread.
+        let own: Vec<_> = p.claimed_stamps(&c).collect();
+        assert_eq!(own.len(), 5000);
+        let lost = 5000 - STAMP_RING as usize;
+        assert!(own[..lost].iter().all(Option::is_none));
+        assert!(own[lost..]
+            .iter()
+            .zip(2000 + lost as u64..)
+            .all(|(s, want)| *s == Some(want)));
+    }
+
+    #[test]
+    fn a_stamp_overwritten_while_read_is_not_taken_for_its_own() {
+        let p = PendingBatches::default();
+        p.mark(10);
+        let c = p.claim();
+        // The producer laps the ring before the solver reads the claimed stamp.
+        for k in 0..STAMP_RING {
+            p.mark(100 + k);
+        }
+        assert_eq!(p.claimed_stamps(&c).collect::<Vec<_>>(), [None]);
     }
 
     #[test]
@@ -175,7 +250,7 @@ mod tests {
                 let p = Arc::clone(&p);
                 std::thread::spawn(move || (1..=n).for_each(|k| p.mark(k)))
             };
-            let mut claimed = 0;
+            let (mut claimed, mut booked) = (0, Vec::new());
             while claimed < n {
                 let c = p.claim();
                 if c.count > 0 {
@@ -183,9 +258,13 @@ mod tests {
                     assert_eq!(c.oldest_pushed_ns, claimed + 1);
                     claimed += c.count;
                 }
+                // Each batch's own stamp once, in push order (its word may land a claim later).
+                booked.extend(p.claimed_stamps(&c).map(Option::unwrap));
             }
             marker.join().unwrap();
             assert_eq!((claimed, p.claim().count), (n, 0));
+            booked.extend(p.claimed_stamps(&p.claim()).map(Option::unwrap));
+            assert_eq!(booked, (1..=n).collect::<Vec<_>>());
         }
     }
 

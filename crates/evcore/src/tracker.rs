@@ -594,6 +594,20 @@ pub struct TrackerOutput {
     /// Latency bound of every batch: its first estimate's publication minus the push of the oldest
     /// batch that estimate took in (one sample per batch).
     oldest_latency: LatencyHistogram,
+    /// Latency of every batch, hence of each of its events: its first estimate's publication
+    /// minus its own push (one sample per batch).
+    batch_latency: LatencyHistogram,
+}
+
+/// The latency histograms of [`TrackerOutput::latency`].
+#[derive(Debug, Clone, Copy)]
+pub struct Latencies<'a> {
+    /// Each batch's own latency: every event's.
+    pub batch: &'a LatencyHistogram,
+    /// Each batch that was the newest behind a pose.
+    pub newest: &'a LatencyHistogram,
+    /// The bound of every batch by the oldest batch its pose took in.
+    pub oldest: &'a LatencyHistogram,
 }
 
 impl TrackerOutput {
@@ -617,6 +631,7 @@ impl TrackerOutput {
             pending: PendingBatches::default(),
             newest_latency: LatencyHistogram::default(),
             oldest_latency: LatencyHistogram::default(),
+            batch_latency: LatencyHistogram::default(),
         }
     }
 
@@ -648,11 +663,15 @@ impl TrackerOutput {
         self.newest.get()
     }
 
-    /// Event-to-pose latencies so far: of each newest batch (`newest`, as
-    /// [`Estimate::latency_ns`]) and the bound of every batch (`oldest`, as
-    /// [`Estimate::oldest_latency_ns`], one sample per batch).
-    pub fn latency(&self) -> (&LatencyHistogram, &LatencyHistogram) {
-        (&self.newest_latency, &self.oldest_latency)
+    /// Event-to-pose latencies so far, one sample per batch: of each batch (its first pose's
+    /// publication minus its own push), of each newest batch (as [`Estimate::latency_ns`]) and
+    /// the bound of every batch (as [`Estimate::oldest_latency_ns`]).
+    pub fn latency(&self) -> Latencies<'_> {
+        Latencies {
+            batch: &self.batch_latency,
+            newest: &self.newest_latency,
+            oldest: &self.oldest_latency,
+        }
     }
 }
 
@@ -1131,6 +1150,14 @@ impl Solver {
         }
         if let Some(ns) = self.last.oldest_latency_ns() {
             self.out.oldest_latency.record(ns, claim.count);
+        }
+        let published = self.last.published_ns;
+        for stamp in self.out.pending.claimed_stamps(&claim) {
+            // A lost stamp is booked at the claim's bound, which holds it (see `claim`).
+            let pushed = stamp.unwrap_or(claim.oldest_pushed_ns);
+            self.out
+                .batch_latency
+                .record(published.saturating_sub(pushed), 1);
         }
     }
 
@@ -2721,12 +2748,20 @@ mod tests {
             (again.oldest_pushed_ns, again.oldest_latency_ns()),
             (0, None)
         );
-        // Booked by the tracker: both batches under the first pose's bound, one newest sample.
+        // Booked by the tracker: both batches under the first pose's bound, one newest sample,
+        // and each batch at its own latency: the first at the bound, the second 3 ms less.
         let out = core.output();
-        let (newest, oldest) = out.latency();
-        assert_eq!((newest.count(), oldest.count()), (1, 2));
-        assert_eq!(oldest.max_ns(), Some(bound));
-        assert!(oldest.quantile_ns(0.5).unwrap() >= bound.min(newest.max_ns().unwrap()));
+        let lat = out.latency();
+        assert_eq!(
+            (lat.newest.count(), lat.oldest.count(), lat.batch.count()),
+            (1, 2, 2)
+        );
+        assert_eq!(lat.oldest.max_ns(), Some(bound));
+        assert!(lat.oldest.quantile_ns(0.5).unwrap() >= bound.min(lat.newest.max_ns().unwrap()));
+        assert_eq!(lat.batch.max_ns(), Some(bound));
+        let second = lat.batch.quantile_ns(0.5).unwrap();
+        assert!(second <= bound - 3_000_000 + 10_000, "{second} {bound}");
+        assert!(second >= est.latency_ns().unwrap());
     }
 
     #[test]

@@ -525,15 +525,21 @@ impl PyTracker {
     }
 
     /// Event-to-pose latency so far, booked by the solver at each publication (a dict, seconds,
-    /// lock-free): `newest_*` over the batches that were the newest behind a pose (as
-    /// `Estimate.latency_s`), `oldest_*` the bound of every batch (as `Estimate.oldest_latency_s`,
-    /// weighted by the batches each pose took in); `*_n` samples, `*_p50_s`, `*_p99_s` (upper
-    /// edges of 10 µs bins), `*_max_s`. The quantiles are None before any sample.
+    /// lock-free): `batch_*` over every batch, the publication of the first pose containing it
+    /// minus its own push (the latency of each of its events); `newest_*` over the batches that
+    /// were the newest behind a pose (as `Estimate.latency_s`); `oldest_*` the bound of every
+    /// batch by the oldest batch its pose took in (as `Estimate.oldest_latency_s`); `*_n`
+    /// samples, `*_p50_s`, `*_p99_s` (upper edges of 10 µs bins), `*_max_s`. The quantiles are
+    /// None before any sample.
     fn latency<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
-        let (newest, oldest) = self.output.latency();
+        let lat = self.output.latency();
         let d = pyo3::types::PyDict::new(py);
         let s = |ns: Option<u64>| ns.map(|ns| ns as f64 * 1e-9);
-        for (name, h) in [("newest", newest), ("oldest", oldest)] {
+        for (name, h) in [
+            ("batch", lat.batch),
+            ("newest", lat.newest),
+            ("oldest", lat.oldest),
+        ] {
             d.set_item(format!("{name}_n"), h.count())?;
             d.set_item(format!("{name}_p50_s"), s(h.quantile_ns(0.5)))?;
             d.set_item(format!("{name}_p99_s"), s(h.quantile_ns(0.99)))?;
