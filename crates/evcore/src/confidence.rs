@@ -139,7 +139,7 @@ pub fn evidence(
         chance_tight,
         visible: visible as f32 / points.len().max(1) as f32,
         explained: if q.explain {
-            explained_fraction(level, pin, pose, points, q.region)
+            explained_fraction(level, pin, pose, points, q.region, None)
         } else {
             0.0
         },
@@ -265,12 +265,19 @@ pub const EXPLAINED_ENOUGH: f32 = 0.5;
 /// Cell side (pixels) of the occupancy grid the projected model is drawn into for `explained`.
 pub const EXPLAIN_CELL_PX: u32 = 4;
 
+/// The share of the active pixels of `region` that lie near the model projected at `pose` (see
+/// [`Evidence::explained`]). `fresh`: only pixels that themselves fired at or after that time (µs)
+/// count as events to explain ([`Recency::pixel_fired_since`]), not every pixel the front-end
+/// still holds in a block that fired: a moving object's older edge positions and the blocks' old
+/// noise are nothing a pose should account for (leave-return, the truth while the box moves back:
+/// 0.61 of the pixels of fresh blocks, 0.94–0.96 of the fresh pixels).
 pub(crate) fn explained_fraction(
     level: &FieldLevel,
     pin: &Pinhole,
     pose: &Rigid32,
     points: &[[f32; 3]],
     region: Roi,
+    fresh: Option<(&Recency, i64)>,
 ) -> f32 {
     let c = EXPLAIN_CELL_PX;
     let (gw, gh) = (
@@ -311,7 +318,9 @@ pub(crate) fn explained_fraction(
         let row = &level.value[(y - lr.y0) as usize * w..][..w];
         let grow = ((y - region.y0) / c) as usize * gw;
         for x in x0..x1 {
-            if row[(x - lr.x0) as usize] == 0.0 {
+            if row[(x - lr.x0) as usize] == 0.0
+                && fresh.is_none_or(|(recency, since)| recency.pixel_fired_since(x, y, since))
+            {
                 active += 1;
                 explained += usize::from(near[grow + ((x - region.x0) / c) as usize]);
             }
@@ -504,6 +513,7 @@ mod tests {
                 rng.below(1280) as u16,
                 rng.below(720) as u16,
                 rng.below(100) as i64,
+                false,
             );
         }
         let rot = Vector3::new(0.3, 0.4, 0.1);

@@ -3,7 +3,9 @@
 //! edges indefinitely, and a pose sitting on them looks perfectly supported. What gives it away is
 //! time: an object that was moving in the image must keep firing where its edges are.
 //!
-//! [`Recency`] keeps, per block of sensor pixels, the time of the newest event there. It is written
+//! [`Recency`] keeps, per block of sensor pixels, the time of the newest event there (and, while the
+//! tracker is lost, per pixel, for the global search's `explained` share: see
+//! [`Recency::pixel_fired_since`]). It is written
 //! by the ingest half of the tracker (the caller's thread) and read by the solver thread, so it is a
 //! table of atomics: one writer stores, readers load, no lock and no read-modify-write (event times
 //! only grow, so the newest store is the maximum). [`MotionMemory`] keeps the image speed of the
@@ -16,12 +18,13 @@ use crate::image::Roi;
 use crate::se3::Pose;
 use crate::solve::cost::{Pinhole, Rigid32};
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU32, Ordering};
 
 /// log2 of the side of a recency block (sensor pixels): 8×8 blocks.
 const BLOCK_SHIFT: u32 = 3;
 
-/// Newest event time (µs) per 8×8 block of sensor pixels, shared by ingest (writer) and solver.
+/// Newest event time (µs) per 8×8 block of sensor pixels (and, while the solver asks, per pixel),
+/// shared by ingest (writer) and solver.
 #[derive(Debug)]
 pub struct Recency {
     blocks_x: usize,
@@ -31,6 +34,20 @@ pub struct Recency {
     rect_width: usize,
     block_of_rect: Vec<u32>,
     last_us: Vec<AtomicI64>,
+    /// Sensor width, and for each rectified pixel the index of the sensor pixel it is seen at
+    /// (`u32::MAX` outside the sensor).
+    sensor_width: usize,
+    pixel_of_rect: Vec<u32>,
+    /// The low 32 bits of the newest event time (µs) per sensor pixel: the block's exact time
+    /// minus these, taken modulo 2^32, is the pixel's age behind its block (see
+    /// [`Recency::pixel_fired_since`]). Written only from `pixels_from_us` on.
+    pixel_us: Vec<AtomicU32>,
+    /// Event time (µs) from which every event has been stamped into `pixel_us` (`i64::MAX`: the
+    /// per-pixel times are not being kept). The store into a sensor-sized table makes ingest
+    /// 1.3–1.4× as dear (criterion `ingest_push_32mevs_*`), so it is paid only while the solver
+    /// asks for it (`pixels_wanted`: searching globally).
+    pixels_from_us: AtomicI64,
+    pixels_wanted: AtomicBool,
 }
 
 impl Recency {
@@ -38,23 +55,25 @@ impl Recency {
     pub fn new(sensor: &Camera, rect: &Camera) -> Self {
         let blocks_x = sensor.width.div_ceil(1 << BLOCK_SHIFT) as usize;
         let blocks_y = sensor.height.div_ceil(1 << BLOCK_SHIFT) as usize;
-        let block_of_rect = (0..rect.height)
-            .flat_map(|v| (0..rect.width).map(move |u| (u, v)))
-            .map(|(u, v)| {
-                let (x, y) = sensor.distort_pixel(f64::from(u), f64::from(v));
-                let (x, y) = (x.round(), y.round());
-                if x >= 0.0
-                    && y >= 0.0
-                    && x < f64::from(sensor.width)
-                    && y < f64::from(sensor.height)
-                {
-                    ((y as u32 >> BLOCK_SHIFT) as usize * blocks_x
-                        + (x as u32 >> BLOCK_SHIFT) as usize) as u32
-                } else {
-                    u32::MAX
-                }
-            })
-            .collect();
+        let sensor_pixel = |u: u32, v: u32| {
+            let (x, y) = sensor.distort_pixel(f64::from(u), f64::from(v));
+            let (x, y) = (x.round(), y.round());
+            (x >= 0.0 && y >= 0.0 && x < f64::from(sensor.width) && y < f64::from(sensor.height))
+                .then_some((x as u32, y as u32))
+        };
+        let (mut block_of_rect, mut pixel_of_rect) = (Vec::new(), Vec::new());
+        for v in 0..rect.height {
+            for u in 0..rect.width {
+                let (b, p) = sensor_pixel(u, v).map_or((u32::MAX, u32::MAX), |(x, y)| {
+                    (
+                        (y >> BLOCK_SHIFT) * blocks_x as u32 + (x >> BLOCK_SHIFT),
+                        y * sensor.width + x,
+                    )
+                });
+                block_of_rect.push(b);
+                pixel_of_rect.push(p);
+            }
+        }
         Self {
             blocks_x,
             blocks_y,
@@ -63,15 +82,77 @@ impl Recency {
             last_us: (0..blocks_x * blocks_y)
                 .map(|_| AtomicI64::new(i64::MIN))
                 .collect(),
+            sensor_width: sensor.width as usize,
+            pixel_of_rect,
+            pixel_us: (0..sensor.width as usize * sensor.height as usize)
+                .map(|_| AtomicU32::new(0))
+                .collect(),
+            pixels_from_us: AtomicI64::new(i64::MAX),
+            pixels_wanted: AtomicBool::new(false),
         }
     }
 
-    /// Note an event at sensor pixel (x, y) (validated) at `t_us`. Single writer, times
-    /// non-decreasing: a plain store keeps the newest.
+    /// Note an event at sensor pixel (x, y) (validated) at `t_us`, in its pixel's time too when
+    /// `per_pixel` (see [`Recency::keep_pixel_times`]). Single writer, times non-decreasing: a
+    /// plain store keeps the newest.
     #[inline]
-    pub fn record(&self, x: u16, y: u16, t_us: i64) {
+    pub fn record(&self, x: u16, y: u16, t_us: i64, per_pixel: bool) {
         let b = (y as usize >> BLOCK_SHIFT) * self.blocks_x + (x as usize >> BLOCK_SHIFT);
         self.last_us[b].store(t_us, Ordering::Relaxed);
+        if per_pixel {
+            self.pixel_us[y as usize * self.sensor_width + x as usize]
+                .store(t_us as u32, Ordering::Relaxed);
+        }
+    }
+
+    /// The reader asks for per-pixel times to be kept, or no longer.
+    pub fn want_pixel_times(&self, wanted: bool) {
+        self.pixels_wanted.store(wanted, Ordering::Relaxed);
+    }
+
+    /// Whether the reader asks for per-pixel times ([`Recency::want_pixel_times`]).
+    pub fn pixel_times_wanted(&self) -> bool {
+        self.pixels_wanted.load(Ordering::Relaxed)
+    }
+
+    /// Whether per-pixel times are being kept. The writer's side of [`Recency::keep_pixel_times`].
+    pub fn keeps_pixel_times(&self) -> bool {
+        self.pixels_from_us.load(Ordering::Relaxed) != i64::MAX
+    }
+
+    /// The writer: keep per-pixel times from the event at `from_us` on (every later event is
+    /// recorded with `per_pixel`), or stop keeping them (None).
+    pub fn keep_pixel_times(&self, from_us: Option<i64>) {
+        self.pixels_from_us
+            .store(from_us.unwrap_or(i64::MAX), Ordering::Release);
+    }
+
+    /// Did the sensor pixel that rectified pixel (u, v) is seen at fire at or after `since_us`?
+    /// Its block must have (the exact test), and the pixel must be no older behind its block's
+    /// newest event than the block is behind `since_us`. The per-pixel times keep only 32 bits,
+    /// so a pixel silent for a multiple of 2^32 µs (71.6 min) to within that slack reads fresh.
+    /// Per block alone, every pixel the front-end still holds in a block that fired counts: a
+    /// moving object's older edge positions and the old noise of every block it crosses. That is
+    /// the answer while per-pixel times have not been kept since `since_us`.
+    #[inline]
+    pub fn pixel_fired_since(&self, u: u32, v: u32, since_us: i64) -> bool {
+        let i = v as usize * self.rect_width + u as usize;
+        let (Some(&b), Some(&p)) = (self.block_of_rect.get(i), self.pixel_of_rect.get(i)) else {
+            return false;
+        };
+        if b == u32::MAX {
+            return false;
+        }
+        let block_us = self.last_us[b as usize].load(Ordering::Relaxed);
+        if block_us < since_us {
+            return false;
+        }
+        if since_us < self.pixels_from_us.load(Ordering::Acquire) {
+            return true;
+        }
+        let behind =
+            (block_us as u32).wrapping_sub(self.pixel_us[p as usize].load(Ordering::Relaxed));
+        i64::from(behind) <= block_us - since_us
     }
 
     /// Forget every time (the time line restarts).
@@ -79,6 +160,10 @@ impl Recency {
         for t in &self.last_us {
             t.store(i64::MIN, Ordering::Relaxed);
         }
+        for t in &self.pixel_us {
+            t.store(0, Ordering::Relaxed);
+        }
+        self.keep_pixel_times(None);
     }
 
     fn block_at(&self, u: f32, v: f32) -> Option<usize> {
@@ -355,8 +440,8 @@ mod tests {
         let writer = {
             let r = std::sync::Arc::clone(&r);
             std::thread::spawn(move || {
-                r.record(20, 10, 300);
-                r.record(22, 12, 500);
+                r.record(20, 10, 300, false);
+                r.record(22, 12, 500, false);
             })
         };
         writer.join().unwrap();
@@ -381,12 +466,60 @@ mod tests {
         let raw = Camera::imx636();
         let r = Recency::new(&raw, &raw.rectified());
         let (x, y) = raw.distort_pixel(100.0, 80.0);
-        r.record(x.round() as u16, y.round() as u16, 7);
+        r.record(x.round() as u16, y.round() as u16, 7, false);
         assert!(
             (x - 100.0).abs() > 24.0,
             "the test needs a pixel distortion moves"
         );
         assert_eq!(r.last_us(100.0, 80.0), 7);
+    }
+
+    #[test]
+    fn a_pixel_is_fresh_only_if_it_fired_itself_not_just_its_block() {
+        let cam = Camera::imx636().rectified();
+        let r = Recency::new(&cam, &cam);
+        // Two pixels of one 8×8 block: (17, 9) at 300 µs, (22, 12) at 500 µs; then, past the 32 bits
+        // the per-pixel times keep (71.6 min), (20, 10) of the same block fires.
+        r.record(17, 9, 100, false);
+        assert!(!r.keeps_pixel_times());
+        assert!(
+            r.pixel_fired_since(20, 10, 50),
+            "without per-pixel times: its block's"
+        );
+        r.keep_pixel_times(Some(300));
+        assert!(r.keeps_pixel_times());
+        r.record(17, 9, 300, true);
+        r.record(22, 12, 500, true);
+        assert!(r.pixel_fired_since(22, 12, 400));
+        assert!(
+            !r.pixel_fired_since(17, 9, 400),
+            "its block fired since, it did not"
+        );
+        assert!(r.pixel_fired_since(17, 9, 300) && r.pixel_fired_since(22, 12, 300));
+        assert!(
+            !r.pixel_fired_since(22, 12, 501),
+            "nothing in the block since"
+        );
+        assert!(
+            !r.pixel_fired_since(30, 9, 0),
+            "another block that never fired"
+        );
+        assert!(!r.pixel_fired_since(5000, 9, 0), "outside the image");
+        let later = (1i64 << 32) + 200;
+        r.record(20, 10, later, true);
+        assert!(r.pixel_fired_since(20, 10, later - 10));
+        assert!(!r.pixel_fired_since(22, 12, later - 10));
+        assert!(
+            !r.pixel_fired_since(17, 9, later - 1000),
+            "2^32 − 100 µs old: the wrapped difference does not make it fresh"
+        );
+        assert!(
+            r.pixel_fired_since(17, 9, 299),
+            "since before the per-pixel times were kept: its block's"
+        );
+        r.reset();
+        assert!(!r.keeps_pixel_times());
+        assert!(!r.pixel_fired_since(20, 10, 0));
     }
 
     #[test]

@@ -843,6 +843,12 @@ impl Ingest {
                 self.unflickered.len()
             }
         };
+        // Per-pixel times only while the solver searches globally: its candidates' `explained`
+        // share is their only reader, and they make every event a store into a sensor-sized table.
+        let per_pixel = self.recency.pixel_times_wanted();
+        if per_pixel != self.recency.keeps_pixel_times() {
+            self.recency.keep_pixel_times(per_pixel.then_some(first_t));
+        }
         let filtered = self.flicker.is_some();
         let unflickered = &self.unflickered;
         let index = |j: usize| if filtered { unflickered[j] as usize } else { j };
@@ -851,7 +857,7 @@ impl Ingest {
             for j in 0..m {
                 let i = index(j);
                 let (x, y) = events.xy(i);
-                self.recency.record(x, y, events.t_at(i));
+                self.recency.record(x, y, events.t_at(i), per_pixel);
                 self.pixels.push(self.lut.raw_index(x, y));
             }
         } else {
@@ -861,7 +867,7 @@ impl Ingest {
             while pos < end {
                 let i = index(pos as usize);
                 let (x, y) = events.xy(i);
-                self.recency.record(x, y, events.t_at(i));
+                self.recency.record(x, y, events.t_at(i), per_pixel);
                 self.pixels.push(self.lut.raw_index(x, y));
                 pos += step;
             }
@@ -966,6 +972,10 @@ pub struct Solver {
     /// The sweep's field when the coarsest level is wider than `SWEEP_MAX_WIDTH` (one level,
     /// OR-pooled from the coarsest; built lazily).
     sweep_field: Option<DistanceField>,
+    /// Event time (µs) since which the pixels of the last full-image field (a global pass's)
+    /// fired per block; a candidate's `explained` share counts only the pixels that themselves
+    /// fired since then (see `Solver::evidence_of`).
+    global_since_us: i64,
     /// Passes in a row that found the current pose, a global-search candidate that passed
     /// `reacquire_above` and was taken as the pose to track on while still lost: the next pass
     /// only has to find it again where the local steps took it before it is trusted.
@@ -1123,6 +1133,7 @@ impl Solver {
             trusted_pose: None,
             pending: None,
             sweep_field: None,
+            global_since_us: i64::MIN,
             claim: Claim::default(),
             uv: Vec::new(),
             near_model: Vec::new(),
@@ -1209,6 +1220,7 @@ impl Solver {
         let newest = self.newest();
         self.claim = self.out.pending.claim();
         let t_us = newest.0;
+        self.want_pixel_times();
         if self
             .out
             .stream_us
@@ -1663,7 +1675,8 @@ impl Solver {
     /// their block since then (µs). `explain_above`: also measure the share of the events around
     /// the pose that it explains (global search), when its support exceeds chance by at least
     /// that much; else `explained` stays 0. Scanning the region for it was the dearest part of
-    /// scoring a candidate, and the acquisition score is at most that excess.
+    /// scoring a candidate, and the acquisition score is at most that excess. The events to explain
+    /// are the field's pixels that themselves fired since the global pass's freshness time.
     fn evidence_of(
         &self,
         pose: &Pose,
@@ -1695,7 +1708,8 @@ impl Solver {
         let level = self.field.level(0);
         let mut e = evidence(level, &pin, &rig, points, &query);
         if explain_above.is_some_and(|floor| e.support - e.chance >= floor) {
-            e.explained = explained_fraction(level, &pin, &rig, points, region);
+            let fresh = Some((&*self.recency, self.global_since_us));
+            e.explained = explained_fraction(level, &pin, &rig, points, region, fresh);
         }
         e
     }
@@ -1771,8 +1785,9 @@ impl Solver {
         self.reader.fill_mask(full, &mut self.mask);
         // Search only what fired recently: the front-end keeps stale edges (where the object was)
         // and accumulates background noise, both of which would draw the search.
+        self.global_since_us = t_us - self.config.search_fresh_us;
         self.recency
-            .keep_fresh(&mut self.mask, full, t_us - self.config.search_fresh_us);
+            .keep_fresh(&mut self.mask, full, self.global_since_us);
         self.field.build(&self.mask, full, levels).ok()?;
         let mut seeds: Vec<(Pose, Option<usize>, f32)> = vec![(self.last.pose, None, f32::NAN)];
         let coarsest = levels - 1;
@@ -2044,6 +2059,13 @@ impl Solver {
         turned
     }
 
+    /// Ask the ingest half for per-pixel event times while a global search may run (see
+    /// [`Recency::pixel_fired_since`]).
+    fn want_pixel_times(&self) {
+        self.recency
+            .want_pixel_times(self.searching && self.bank.is_some());
+    }
+
     /// Take S* from view `v` of `bank` (between updates: the next step uses it).
     fn use_view(&mut self, bank: &TemplateBank, v: usize) {
         self.points.clone_from(&bank.views[v].points_o);
@@ -2148,6 +2170,7 @@ impl TrackerCore {
         core.solver.bank = Some(Arc::new(bank));
         core.solver.searching = true;
         core.solver.had_pose = false;
+        core.solver.want_pixel_times();
         Ok(core)
     }
 
@@ -2184,6 +2207,7 @@ impl TrackerCore {
         s.full_pass = PassClock::default();
         s.near_pass = PassClock::default();
         s.any_pass = PassClock::default();
+        s.want_pixel_times();
         s.publish();
     }
 
@@ -3297,7 +3321,7 @@ mod tests {
                 let pixels: Vec<u32> = kept
                     .iter()
                     .map(|e| {
-                        r.recency.record(e.x, e.y, e.t);
+                        r.recency.record(e.x, e.y, e.t, false);
                         r.lut.map(e.x, e.y)
                     })
                     .collect();
