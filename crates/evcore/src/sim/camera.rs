@@ -1028,11 +1028,6 @@ impl SimCamera {
         let tx = w.div_ceil(t);
         self.between.clear();
         self.between.extend_from_slice(&self.raw);
-        if !self.flickers() {
-            // Without flicker each pixel's level moves monotonically between the renders, so a
-            // segment that cannot fire by this render need not be stepped at the ticks before it.
-            self.sim.skip_quiet_until(&self.raw, redrawn, t_us)?;
-        }
         for &tick in ticks {
             let s = (tick - t_prev) as f32 / (t_us - t_prev) as f32;
             self.between

@@ -378,47 +378,6 @@ impl EventSimulator {
         Ok(())
     }
 
-    /// Before stepping ([`Self::step_tiles`]) at ticks whose frames are interpolated linearly
-    /// in time between the sensor's current intensities and `end` (all `width`×`height` pixels,
-    /// the frame of the step at `t_end_us`): let those steps pass by the row segments of the
-    /// tiles flagged in `changed` that cannot fire before `t_end_us` (`Row::skip_quiet_gap`).
-    /// The step at `t_end_us` takes their whole gap at once. The events equal stepping every
-    /// tick but for f32 rounding of the reference (rounded once instead of at each tick) and for
-    /// a noise event in such a segment, which sees the pixel's level as of its last step.
-    /// Returns how many row segments the steps may pass by.
-    pub fn skip_quiet_until(
-        &mut self,
-        end: &[f32],
-        changed: &[bool],
-        t_end_us: i64,
-    ) -> Result<usize> {
-        let w = self.width as usize;
-        let (tx, ty) = self.tiles();
-        ensure(
-            end.len() == w * self.height as usize && changed.len() == tx * ty,
-            || {
-                format!(
-                    "{} values and {} tile flags for a {}x{} sensor",
-                    end.len(),
-                    changed.len(),
-                    self.width,
-                    self.height
-                )
-            },
-        )?;
-        let log_eps = self.params.log_eps as f32;
-        Ok(self
-            .rows
-            .par_iter_mut()
-            .zip(end.par_chunks(w))
-            .enumerate()
-            .map(|(y, (row, e))| {
-                let flags = &changed[y / TILE_PX as usize * tx..][..tx];
-                row.skip_quiet_gap(e, flags, t_end_us, log_eps)
-            })
-            .sum())
-    }
-
     fn check_frame(&self, frame: &[f32], w: u32, h: u32) -> Result<()> {
         let n = w as usize * h as usize;
         ensure(frame.len() == n, || {

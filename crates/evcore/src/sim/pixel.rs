@@ -19,11 +19,6 @@ const NEVER_DUE: i64 = i64::MAX;
 /// pass, waking it late would misplace an event.
 const DUE_SLACK_LOG: f64 = 1e-5;
 
-/// Log-intensity margin of [`Row::skip_quiet_gap`]'s band test: the interpolated f32 intensities
-/// and the vectorised logarithm (2 ulp) may stray a few ulps outside the two renders' levels, and
-/// each step rounds the reference to f32; a pixel this close to a threshold is stepped.
-const GAP_SLACK_LOG: f64 = 1e-5;
-
 /// One emitted event before the frame-wide sort; `idx` is the row-major pixel index.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct RawEvent {
@@ -75,12 +70,6 @@ pub(super) struct Row {
     /// the earliest time leak alone can make one of them fire (µs, [`NEVER_DUE`] if never).
     pub seg_t_us: Vec<i64>,
     pub seg_due_us: Vec<i64>,
-    /// Per segment: steps ending before this time (µs) may pass the segment by although its
-    /// tile changed, because none of its pixels can fire before then ([`Self::skip_quiet_gap`]).
-    skip_until_us: Vec<i64>,
-    /// Each pixel's level at the end of its segment's skipped gap, from [`Self::skip_quiet_gap`],
-    /// so that the step at that time does not take the logarithm again.
-    gap_end_l: Vec<f32>,
     /// Columns of the row's hot pixels, ascending.
     pub hot: Vec<u32>,
     /// Scratch reused between steps to avoid per-step allocation.
@@ -124,8 +113,6 @@ impl Row {
             us_per_log_leak: vec![0.0; width],
             seg_t_us: vec![0; width.div_ceil(SEGMENT_PX)],
             seg_due_us: vec![NEVER_DUE; width.div_ceil(SEGMENT_PX)],
-            skip_until_us: vec![i64::MIN; width.div_ceil(SEGMENT_PX)],
-            gap_end_l: vec![0.0; width],
             hot: Vec::new(),
             events: Vec::new(),
             shots: Vec::new(),
@@ -287,29 +274,16 @@ impl Row {
             while k < shots.len() && (shots[k].col as usize) < xe {
                 k += 1;
             }
-            let flag = flag && t1 >= self.skip_until_us[seg];
             if !(flag || k > first || self.seg_due_us[seg] <= t1) {
                 continue;
             }
-            // Passed by up to this step, whose intensities are the gap's end: levels known.
-            let known_l = t1 == self.skip_until_us[seg];
-            // Visited (for noise or leak): its pixels are no longer known to stay quiet (a noise
-            // event resets a reference), so it is stepped with its tile from now on.
-            self.skip_until_us[seg] = i64::MIN;
             let t_from = self.seg_t_us[seg];
             let mut noisy = [false; SEGMENT_PX];
             for s in &shots[first..k] {
                 noisy[s.col as usize - xs] = true;
             }
             let mut quiet = [false; SEGMENT_PX];
-            self.quiet_segment(
-                &frame[xs..xe],
-                xs,
-                (&noisy, known_l),
-                t_from,
-                iv,
-                &mut quiet,
-            );
+            self.quiet_segment(&frame[xs..xe], xs, &noisy, t_from, iv, &mut quiet);
             let mut j = first;
             for x in (xs..xe).filter(|x| !quiet[x - xs]) {
                 let idx = idx0 + x as u32;
@@ -330,67 +304,6 @@ impl Row {
             self.seg_due_us[seg] = self.leak_due_us(xs..xe, t1);
         }
         self.shots = shots;
-    }
-
-    /// Let the steps ending before `t_end_us` pass by every segment flagged in `changed` (one
-    /// flag per segment) none of whose pixels can fire on the way to `end` (the row's intensities
-    /// at `t_end_us`), the intensities in between being interpolated linearly in time. Such a
-    /// pixel's level stays between its current level and its level at `end` (the logarithm is
-    /// monotone) and its leak only adds up to `leak · (t_end − last update)`, so a band test of
-    /// those bounds covers every tick in between; the step at `t_end_us` then takes the whole
-    /// gap at once. Noise is sampled per step as before, and a segment visited for it is stepped
-    /// with its tile from then on ([`Self::step_segments`]).
-    /// Returns how many segments it lets pass.
-    pub fn skip_quiet_gap(
-        &mut self,
-        end: &[f32],
-        changed: &[bool],
-        t_end_us: i64,
-        log_eps: f32,
-    ) -> usize {
-        let mut skipped = 0;
-        for (seg, &flag) in changed.iter().enumerate() {
-            if !flag {
-                continue;
-            }
-            let (xs, xe) = (seg * SEGMENT_PX, ((seg + 1) * SEGMENT_PX).min(end.len()));
-            let span_us = (t_end_us - self.seg_t_us[seg]) as f64;
-            let quiet = if xe - xs == SEGMENT_PX {
-                self.gap_quiet_lanes(&end[xs..xs + SEGMENT_PX], xs, span_us, log_eps)
-            } else {
-                self.gap_quiet_lanes(&end[xs..xe], xs, span_us, log_eps)
-            };
-            self.skip_until_us[seg] = if quiet { t_end_us } else { i64::MIN };
-            skipped += usize::from(quiet);
-        }
-        skipped
-    }
-
-    /// [`Self::skip_quiet_gap`]'s test of the segment at columns `xs .. xs + end.len()`, branch-free
-    /// so that it vectorises (inlined at each length, as [`Self::quiet_lanes`]).
-    #[inline(always)]
-    fn gap_quiet_lanes(&mut self, end: &[f32], xs: usize, span_us: f64, log_eps: f32) -> bool {
-        let n = end.len();
-        let gap_end_l = &mut self.gap_end_l[xs..xs + n];
-        let (prev_i, prev_l) = (&self.prev_i[xs..xs + n], &self.prev_l[xs..xs + n]);
-        let (ref_l, leak) = (&self.ref_l[xs..xs + n], &self.leak_per_us[xs..xs + n]);
-        let (c_pos, c_neg) = (&self.c_pos[xs..xs + n], &self.c_neg[xs..xs + n]);
-        let mut quiet = true;
-        for c in 0..n {
-            let l_end = if end[c].to_bits() == prev_i[c].to_bits() {
-                prev_l[c]
-            } else {
-                log_intensity(end[c], log_eps)
-            };
-            gap_end_l[c] = l_end;
-            let (l0, l1) = (f64::from(prev_l[c]), f64::from(l_end));
-            let r = f64::from(ref_l[c]);
-            let hi = l0.max(l1) + f64::from(leak[c]) * span_us - r;
-            let lo = l0.min(l1) - r;
-            quiet &= (hi < f64::from(c_pos[c]) - GAP_SLACK_LOG)
-                & (-lo < f64::from(c_neg[c]) - GAP_SLACK_LOG);
-        }
-        quiet
     }
 
     /// Bring pixel `x`, last updated at `t_from` < `iv.t0_us`, to `iv.t0_us`: its intensity was
@@ -416,14 +329,13 @@ impl Row {
     /// until `iv.t0_us`, then a straight line to its new intensity, so it stays inside the band
     /// iff both corners do. Updates each pixel that fires nothing and has no shot-noise arrival
     /// (`noisy`), and sets its `quiet` flag; the others are left untouched for the full model.
-    /// With `known_l` the new levels are those [`Self::skip_quiet_gap`] kept (`frame` is its
-    /// gap's end). Branch-free over the segment, so the compiler vectorises it (logarithm
-    /// included): this is the sensor's cost per changed pixel and tick.
+    /// Branch-free over the segment, so the compiler vectorises it (logarithm included): this
+    /// is the sensor's cost per changed pixel and tick.
     fn quiet_segment(
         &mut self,
         frame: &[f32],
         xs: usize,
-        (noisy, known_l): (&[bool; SEGMENT_PX], bool),
+        noisy: &[bool; SEGMENT_PX],
         t_from: i64,
         iv: &Interval,
         quiet: &mut [bool; SEGMENT_PX],
@@ -431,10 +343,9 @@ impl Row {
         // A whole segment (all but a row's last if the width is not a multiple of SEGMENT_PX)
         // has a constant trip count, which the compiler unrolls into straight SIMD code.
         if frame.len() == SEGMENT_PX {
-            let noisy = (noisy, known_l);
             self.quiet_lanes(&frame[..SEGMENT_PX], xs, noisy, t_from, iv, quiet);
         } else {
-            self.quiet_lanes(frame, xs, (noisy, known_l), t_from, iv, quiet);
+            self.quiet_lanes(frame, xs, noisy, t_from, iv, quiet);
         }
     }
 
@@ -444,7 +355,7 @@ impl Row {
         &mut self,
         frame: &[f32],
         xs: usize,
-        (noisy, known_l): (&[bool; SEGMENT_PX], bool),
+        noisy: &[bool; SEGMENT_PX],
         t_from: i64,
         iv: &Interval,
         quiet: &mut [bool; SEGMENT_PX],
@@ -463,21 +374,17 @@ impl Row {
         // The new levels first, in f32 lanes (an unchanged intensity keeps its level bit for bit).
         let mut l1 = [0.0f32; SEGMENT_PX];
         let l1 = &mut l1[..n];
-        if known_l {
-            l1.copy_from_slice(&self.gap_end_l[xs..xs + n]);
-        } else {
-            for ((l, &i1), (&pi, &pl)) in l1
-                .iter_mut()
-                .zip(frame)
-                .zip(prev_i.iter().zip(prev_l.iter()))
-            {
-                let fresh_log = log_intensity(i1, iv.log_eps);
-                *l = if i1.to_bits() == pi.to_bits() {
-                    pl
-                } else {
-                    fresh_log
-                };
-            }
+        for ((l, &i1), (&pi, &pl)) in l1
+            .iter_mut()
+            .zip(frame)
+            .zip(prev_i.iter().zip(prev_l.iter()))
+        {
+            let fresh_log = log_intensity(i1, iv.log_eps);
+            *l = if i1.to_bits() == pi.to_bits() {
+                pl
+            } else {
+                fresh_log
+            };
         }
         // The band test in f64 (as the full model's), the new reference with it.
         let mut ref1 = [0.0f32; SEGMENT_PX];
