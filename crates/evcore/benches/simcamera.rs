@@ -2,7 +2,10 @@
 //! 1280×720 with the IMX636 model's distortion, a 3072-triangle textured box (the render bench's pose) and
 //! the textured background plane 0.6 m behind it, the camera moving 0.2 mm per frame against the
 //! world (≈ 0.15 px of background motion: the closed loop's 1 kHz regime at 0.2 m/s). Sparse
-//! frames against the full-frame reference path; both give the same events (tested).
+//! frames against the full-frame reference path; both give the same events (tested). And
+//! `render_fast`: the `render-fast` source's regime, one sparse render per 4 ticks (≈ 0.6 px of
+//! background motion) with the sensor stepped at the 3 ticks in between on interpolated
+//! intensities (`SimCamera::advance_ticks`); one iteration is one render and 4 sensor steps.
 
 mod common;
 
@@ -67,6 +70,27 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
+    let mut cam = camera(true);
+    let mut out = EventBatch::default();
+    let mut k = 0_i64;
+    cam.advance(&object(0.0), 0, Some(&background(0.0)), &mut out)
+        .unwrap();
+    g.bench_function("render_fast", |b| {
+        b.iter(|| {
+            let ticks = [1000 * k + 1000, 1000 * k + 2000, 1000 * k + 3000];
+            k += 4;
+            let kf = k as f64;
+            cam.advance_ticks(
+                &object(kf),
+                &[],
+                (&ticks, 1000 * k),
+                Some(&background(kf)),
+                &mut out,
+            )
+            .unwrap();
+            out.len()
+        })
+    });
     g.finish();
 }
 
