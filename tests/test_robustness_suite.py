@@ -106,3 +106,34 @@ def test_leave_return_leaves_the_view_wholly_and_comes_back_to_rest_in_it():
     moving = np.flatnonzero(speed_mps > 1e-3)
     assert moving[-1] < n - 100, moving[-1]
     assert np.all(in_view[moving[-1] :] == 1.0)
+
+
+def test_leave_return_relocks_within_300_ms_of_the_return_and_trusts_only_right_poses():
+    """The suite's leave-return (quick, fixed cost model: a global pass is charged like an LM step, so the
+    outcome does not hang on the machine's load): the box is wholly out of the view from about 1.6 s,
+    half in view again at about 2.47 s while still moving back, at rest from 3.25 s. The tracker must
+    trust a pose within the issue's 300 ms of that reappearance, and every pose it trusts from then on
+    must be within 10 mm / 5° of the truth at the pose's own time. Main never re-locked here: the sweep's
+    candidates nearest the truth were 15–26° turned and 19–171 mm off, out of LM's reach; the place
+    search (the bank at the fresh events' blob, each view at the depth its size matches) puts seeds within
+    10–70 mm / 5–15° and a descent on the fresh events takes them into it (benches/RESULTS.md, issue 12,
+    "Round 17")."""
+    import numpy as np
+
+    from evservo.geometry import pose_errors
+    from evservo.runtime.loss import reappearances
+    from evservo.sim.episode import run_episode
+    from evservo.sim.episode_config import TICK_US
+
+    cfg = replace(robustness.scenarios(quick=True)["leave-return"], cost_model="fixed")
+    r = run_episode(cfg)
+    gone = np.flatnonzero(~r.seen)
+    assert len(gone) and r.t_s[gone].max() - r.t_s[gone].min() > 0.5, "the box must leave the view"
+    back_s = [t for t in reappearances(r.t_s, r.seen) if t > r.t_s[gone].min()][-1]
+    trusted = ~r.lost & (r.t_s >= back_s)
+    assert trusted.any(), "never re-locked after the return"
+    relock_s = r.t_s[np.argmax(trusted)] - back_s
+    assert relock_s <= 0.3, relock_s
+    idx = np.clip(np.round(r.est_t_s / (TICK_US * 1e-6)).astype(int), 0, len(r.t_s) - 1)
+    pos_m, rot_rad = pose_errors(r.T_c_o_est[trusted], r.T_c_o_true[idx[trusted]])
+    assert pos_m.max() <= 0.010 and np.rad2deg(rot_rad.max()) <= 5.0, (pos_m.max(), np.rad2deg(rot_rad.max()))

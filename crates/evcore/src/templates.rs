@@ -130,6 +130,9 @@ pub struct TemplateView {
     /// Mean of `coarse` minus the model centre (object frame): where the template's edge mass sits
     /// relative to the centre, so that the sweep can put it on the events' mass.
     coarse_mean_o: Vector3<f64>,
+    /// RMS distance of `coarse` from its mean across the view's image plane (metres): the
+    /// template's size in the image at unit depth, whatever its roll.
+    coarse_spread_m: f64,
 }
 
 #[derive(Debug, Clone)]
@@ -202,13 +205,15 @@ impl TemplateBank {
             let sum = coarse.iter().fold(Vector3::zeros(), |a, x| {
                 a + Vector3::new(f64::from(x[0]), f64::from(x[1]), f64::from(x[2]))
             });
-            let coarse_mean_o = sum / coarse.len() as f64 - centre_o;
+            let mean_o = sum / coarse.len() as f64;
+            let coarse_spread_m = image_plane_spread(&r_c_o, &mean_o, &coarse);
             views.push(TemplateView {
                 r_c_o,
                 dir_o,
                 points_o: set.points_o,
                 coarse,
-                coarse_mean_o,
+                coarse_mean_o: mean_o - centre_o,
+                coarse_spread_m,
             });
         }
         ensure(!views.is_empty(), || {
@@ -307,7 +312,7 @@ impl TemplateBank {
     /// views, rolls and the densest positions at that depth's scale.
     pub fn search(&self, coarse: &FieldLevel, pin: &Pinhole) -> Vec<(Pose, usize, f32)> {
         let p = &self.params;
-        let oriented = self.oriented();
+        let oriented = self.oriented(&p.rolls());
         let active = ActiveCounts::new(coarse);
         let keep = p.candidates;
         let mut out = Vec::new();
@@ -324,16 +329,7 @@ impl TemplateBank {
                     (mu, mv) = active.mean_near(mu, mv, r_px).unwrap_or((mu, mv));
                 }
                 for (oi, o) in oriented.iter().enumerate() {
-                    let (cu, cv) = (
-                        mu - f64::from(pin.fx) * o.mass.x / z,
-                        mv - f64::from(pin.fy) * o.mass.y / z,
-                    );
-                    let ray = Vector3::new(
-                        (cu - f64::from(pin.cx)) / f64::from(pin.fx),
-                        (cv - f64::from(pin.cy)) / f64::from(pin.fy),
-                        1.0,
-                    );
-                    let t = ray * z - o.centre;
+                    let t = placed(pin, o, mu, mv, z);
                     let rig = Rigid32 {
                         t: [t.x as f32, t.y as f32, t.z as f32],
                         ..o.rig
@@ -360,15 +356,155 @@ impl TemplateBank {
         out
     }
 
-    /// Every view turned by every roll, in the sweep's order (views, then rolls): the rotation
-    /// and what it makes of the template's edge mass and the model centre. Formed once per sweep
-    /// rather than once per depth and position (16 times over by default).
-    fn oriented(&self) -> Vec<Oriented> {
-        let rolls: Vec<UnitQuaternion<f64>> = self
-            .params
-            .rolls()
-            .into_iter()
-            .map(|a| UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a))
+    /// Where the events crowd, the bank's every view at every roll (at half the sweep's roll
+    /// spacing) placed with its edge mass on theirs at the depth where its size in the image
+    /// matches their spread, and [`PLACE_DEPTH_RATIO`] nearer and farther: the `keep` best
+    /// (pose, view index, mean field value) over the [`PLACES`] densest places. The sweep's depth
+    /// steps (1.25×) leave a right attitude at the wrong scale scoring worse than a wrong one at
+    /// a better scale (leave-return: its candidates nearest the truth 15–26° turned and 19–171 mm
+    /// off, mostly in depth); here the depth follows each view's own size instead.
+    pub fn search_place(
+        &self,
+        coarse: &FieldLevel,
+        pin: &Pinhole,
+        keep: usize,
+    ) -> Vec<(Pose, usize, f32)> {
+        if keep == 0 {
+            return Vec::new();
+        }
+        let p = &self.params;
+        let rolls: Vec<f64> = {
+            let n = 2 * p.rolls().len();
+            (0..n)
+                .map(|i| (i as f64 * 360.0 / n as f64).to_radians())
+                .collect()
+        };
+        let oriented = self.oriented(&rolls);
+        let active = ActiveCounts::new(coarse);
+        let f = f64::from(pin.fx);
+        let z_mid = (p.depth_min_m * p.depth_max_m).sqrt();
+        let r0 = (f * self.radius_m / z_mid).max(1.0);
+        // (mean field value, translation, index into `oriented`), best first.
+        let mut best: Vec<(f32, Vector3<f64>, usize)> = Vec::new();
+        let mut blobs: Vec<(f64, f64, f64)> = Vec::new();
+        for (u, v) in active.densest(r0, PLACES) {
+            let Some((mu, mv, spread_px)) = active.blob_near(u, v, r0) else {
+                continue;
+            };
+            // Two dense windows on one object lead to the same blob: search it once.
+            if blobs
+                .iter()
+                .any(|b| (b.0 - mu).hypot(b.1 - mv) < b.2.min(spread_px))
+            {
+                continue;
+            }
+            blobs.push((mu, mv, spread_px));
+            for (oi, o) in oriented.iter().enumerate() {
+                let z0 = (f * self.views[o.view].coarse_spread_m / spread_px)
+                    .clamp(p.depth_min_m, p.depth_max_m);
+                for k in -PLACE_DEPTH_STEPS..=PLACE_DEPTH_STEPS {
+                    let z = z0 * PLACE_DEPTH_RATIO.powi(k);
+                    let t = placed(pin, o, mu, mv, z);
+                    let rig = Rigid32 {
+                        t: [t.x as f32, t.y as f32, t.z as f32],
+                        ..o.rig
+                    };
+                    let worst = if best.len() < keep {
+                        f32::INFINITY
+                    } else {
+                        best[keep - 1].0
+                    };
+                    let points = &self.views[o.view].coarse;
+                    let Some(cost) = chamfer(coarse, pin, &rig, points, worst) else {
+                        continue;
+                    };
+                    let at = best.partition_point(|b| b.0 <= cost);
+                    best.insert(at, (cost, t, oi));
+                    best.truncate(keep);
+                }
+            }
+        }
+        best.into_iter()
+            .map(|(c, t, oi)| {
+                let o = &oriented[oi];
+                (Pose::from_parts(Translation3::from(t), o.r), o.view, c)
+            })
+            .collect()
+    }
+
+    /// `pose` (showing `view`) moved downhill on `level` by the mean field value of that view's
+    /// S* (thinned to [`DESCENT_POINTS`]): turned about the camera's three axes through the model
+    /// centre, moved along the centre's ray by the step (in radians) as a share of its depth, and
+    /// shifted across the image, taking the best of those twelve moves, in steps halved from
+    /// [`DESCENT_START_DEG`] whenever none of them lowers it, down to [`DESCENT_END_DEG`]. The
+    /// place search's best view is up to half the bank's spacing from the truth, farther than
+    /// LM reaches on a field of a few fresh edges (leave-return: its seeds 6–15° off stayed there).
+    pub fn descend(&self, level: &FieldLevel, pin: &Pinhole, pose: &Pose, view: usize) -> Pose {
+        let all = &self.views[view].points_o;
+        let stride = (all.len() / DESCENT_POINTS).max(1);
+        let points: Vec<[f32; 3]> = all.iter().step_by(stride).copied().collect();
+        let score = |p: &Pose| {
+            chamfer(level, pin, &Rigid32::from_pose(p), &points, f32::INFINITY)
+                .unwrap_or(f32::INFINITY)
+        };
+        let mut best = *pose;
+        let mut best_cost = score(&best);
+        let mut step = DESCENT_START_DEG;
+        while step >= DESCENT_END_DEG {
+            let centre = best * nalgebra::Point3::from(self.centre_o);
+            let a = step.to_radians();
+            // A shift across the image as far as the turn moves the model's rim (metres).
+            let shift = a * self.radius_m;
+            let mut moves: Vec<Pose> = Vec::with_capacity(12);
+            for axis in [Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()] {
+                for s in [-a, a] {
+                    let r = UnitQuaternion::from_axis_angle(&axis, s) * best.rotation;
+                    let t = centre.coords - r * self.centre_o;
+                    moves.push(Pose::from_parts(Translation3::from(t), r));
+                }
+            }
+            for d in [
+                Vector3::new(shift, 0.0, 0.0),
+                Vector3::new(-shift, 0.0, 0.0),
+                Vector3::new(0.0, shift, 0.0),
+                Vector3::new(0.0, -shift, 0.0),
+                centre.coords * a,
+                -centre.coords * a,
+            ] {
+                moves.push(Pose::from_parts(
+                    Translation3::from(best.translation.vector + d),
+                    best.rotation,
+                ));
+            }
+            let (cost, at) =
+                moves
+                    .iter()
+                    .map(|m| (score(m), *m))
+                    .fold((best_cost, None), |b, c| {
+                        if c.0 < b.0 {
+                            (c.0, Some(c.1))
+                        } else {
+                            b
+                        }
+                    });
+            match at {
+                Some(m) => {
+                    best = m;
+                    best_cost = cost;
+                }
+                None => step *= 0.5,
+            }
+        }
+        best
+    }
+
+    /// Every view turned by every roll in `rolls` (radians), in the sweep's order (views, then
+    /// rolls): the rotation and what it makes of the template's edge mass and the model centre.
+    /// Formed once per sweep rather than once per depth and position (16 times over by default).
+    fn oriented(&self, rolls: &[f64]) -> Vec<Oriented> {
+        let rolls: Vec<UnitQuaternion<f64>> = rolls
+            .iter()
+            .map(|&a| UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a))
             .collect();
         let mut out = Vec::with_capacity(self.views.len() * rolls.len());
         for (view, v) in self.views.iter().enumerate() {
@@ -399,6 +535,51 @@ struct Oriented {
     centre: Vector3<f64>,
     view: usize,
 }
+
+/// The translation that puts `o`'s edge mass at image point (`mu`, `mv`) of `pin` with the model
+/// centre at depth `z` (metres).
+fn placed(pin: &Pinhole, o: &Oriented, mu: f64, mv: f64, z: f64) -> Vector3<f64> {
+    let (cu, cv) = (
+        mu - f64::from(pin.fx) * o.mass.x / z,
+        mv - f64::from(pin.fy) * o.mass.y / z,
+    );
+    let ray = Vector3::new(
+        (cu - f64::from(pin.cx)) / f64::from(pin.fx),
+        (cv - f64::from(pin.cy)) / f64::from(pin.fy),
+        1.0,
+    );
+    ray * z - o.centre
+}
+
+/// RMS distance (metres) of `points` (object frame) from `mean_o` across the image plane of a
+/// camera seeing them at attitude `r_c_o`.
+fn image_plane_spread(
+    r_c_o: &UnitQuaternion<f64>,
+    mean_o: &Vector3<f64>,
+    points: &[[f32; 3]],
+) -> f64 {
+    let sum: f64 = points
+        .iter()
+        .map(|x| {
+            let d =
+                r_c_o * (Vector3::new(f64::from(x[0]), f64::from(x[1]), f64::from(x[2])) - mean_o);
+            d.x * d.x + d.y * d.y
+        })
+        .sum();
+    (sum / points.len().max(1) as f64).sqrt()
+}
+
+/// Points of S* [`TemplateBank::descend`] scores, and its first and last turn (degrees).
+const DESCENT_POINTS: usize = 160;
+const DESCENT_START_DEG: f64 = 8.0;
+const DESCENT_END_DEG: f64 = 1.0;
+
+/// Places (the densest event windows) the place search tries per pass.
+const PLACES: usize = 2;
+/// Depths the place search tries about each view's own: this many steps of
+/// [`PLACE_DEPTH_RATIO`] nearer and farther.
+const PLACE_DEPTH_STEPS: i32 = 1;
+const PLACE_DEPTH_RATIO: f64 = 1.07;
 
 /// How far (in the object's image radii) [`TemplateBank::search_near`] shifts a pose across the
 /// image: a lost object the camera stopped following comes back within a few of its radii of
@@ -553,6 +734,10 @@ fn background_cell_bar(counts: &[u32]) -> u32 {
     1 + (mean + 3.0 * mean.sqrt()) as u32
 }
 
+/// Half-side of the window [`ActiveCounts::blob_near`] measures a blob's spread in, in spreads:
+/// an outline's RMS radius is about 0.7–0.8 of its radius.
+const BLOB_WINDOW_SPREADS: f64 = 2.0;
+
 /// Integral image of the active pixels (field value 0) of a level, to find where events crowd.
 struct ActiveCounts {
     x0: f64,
@@ -607,6 +792,40 @@ impl ActiveCounts {
                 sy as f64 / n as f64 + self.y0,
             )
         })
+    }
+
+    /// The mean position and RMS spread (level pixels) of the active pixels about (`u`, `v`),
+    /// each round within twice the last round's spread of the last mean (the first within
+    /// `r_px`): the blob there, with little of what lies beyond it.
+    fn blob_near(&self, u: f64, v: f64, r_px: f64) -> Option<(f64, f64, f64)> {
+        let (mut mu, mut mv, mut r) = (u, v, r_px);
+        let mut spread = 0.0;
+        for _ in 0..3 {
+            let (x0, y0) = (mu - self.x0, mv - self.y0);
+            let clip = |a: f64, n: usize| (a.max(0.0) as usize).min(n);
+            let (xa, xb) = (clip(x0 - r, self.w), clip(x0 + r + 1.0, self.w));
+            let (ya, yb) = (clip(y0 - r, self.h), clip(y0 + r + 1.0, self.h));
+            let (mut n, mut sx, mut sy, mut sq) = (0.0, 0.0, 0.0, 0.0);
+            for y in ya..yb {
+                for x in xa..xb {
+                    if self.active[y * self.w + x] {
+                        let (x, y) = (x as f64, y as f64);
+                        n += 1.0;
+                        sx += x;
+                        sy += y;
+                        sq += x * x + y * y;
+                    }
+                }
+            }
+            if n < 1.0 {
+                return None;
+            }
+            let (ax, ay) = (sx / n, sy / n);
+            spread = (sq / n - ax * ax - ay * ay).max(0.0).sqrt().max(1.0);
+            (mu, mv) = (ax + self.x0, ay + self.y0);
+            r = BLOB_WINDOW_SPREADS * spread;
+        }
+        Some((mu, mv, spread))
     }
 
     fn count(&self, x0: usize, y0: usize, x1: usize, y1: usize) -> u32 {
@@ -780,6 +999,80 @@ mod tests {
     }
 
     /// A 15 cm grey cube and a tracker with no pose searching for it over its template bank.
+    #[test]
+    fn the_place_search_finds_a_cube_between_the_sweeps_depths_and_the_descent_turns_it_onto_it() {
+        // The cube at 0.53 m, between the sweep's depths 0.47 and 0.59 m, at an attitude none of
+        // the bank's views shows exactly; the fields are pooled as the tracker pools them at
+        // 1280×720 (the sweep's level 3, the descent's level 2).
+        let cam = Camera::imx636().rectified();
+        let (mesh, bank) = cube_bank(&cam);
+        let dense = PointSetParams {
+            max_points: 4000,
+            ..PointSetParams::default()
+        };
+        let r = UnitQuaternion::from_scaled_axis(Vector3::new(0.4, -0.6, 0.25));
+        let truth = Pose::from_parts(Translation3::new(0.12, -0.05, 0.53), r);
+        let edge = extract_point_set(&mesh, &cam, &truth, &dense).unwrap();
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let mut mask = vec![0u8; w * h];
+        let (rig, pin) = (Rigid32::from_pose(&truth), Pinhole::at_level(&cam, 0));
+        for &x in &edge.points_o {
+            let (u, v) = pin.project(rig.apply(x)).unwrap();
+            mask[v.round() as usize * w + u.round() as usize] = 1;
+        }
+        let pooled = |level: u32| {
+            let (m, pw, ph) = pool_above_background(&mask, w, h, level);
+            let params = FieldParams {
+                levels: 1,
+                ..FieldParams::default()
+            };
+            let mut f = DistanceField::new(params).unwrap();
+            f.build(&m, Roi::full(pw as u32, ph as u32), 1).unwrap();
+            f
+        };
+        let (coarse, fine) = (pooled(3), pooled(2));
+        let (pin3, pin2) = (Pinhole::at_level(&cam, 3), Pinhole::at_level(&cam, 2));
+        let found = bank.search_place(coarse.level(0), &pin3, 6);
+        assert_eq!(found.len(), 6);
+        // Off by a cube symmetry (24 look the same): the smallest angle to any of them.
+        let off = |pose: &Pose| {
+            let (dt, _) = distance(pose, &truth);
+            let rel = (truth.rotation.inverse() * pose.rotation).to_rotation_matrix();
+            let m = rel.matrix();
+            let nearest = m.map(|e| if e.abs() > 0.5 { e.signum() } else { 0.0 });
+            let sym = UnitQuaternion::from_matrix(&nearest);
+            let ang = UnitQuaternion::from_matrix(m).angle_to(&sym);
+            (dt, ang.to_degrees())
+        };
+        let depth_off = found
+            .iter()
+            .map(|(p, _, _)| (p * nalgebra::Point3::from(bank.centre_o())).z - 0.53)
+            .fold(f64::INFINITY, |a, d| a.min(d.abs()));
+        assert!(depth_off < 0.02, "nearest depth {depth_off} m off");
+        let descended: Vec<(f64, f64)> = found
+            .iter()
+            .map(|(p, v, _)| off(&bank.descend(fine.level(0), &pin2, p, *v)))
+            .collect();
+        let before = found
+            .iter()
+            .map(|(p, _, _)| off(p).1)
+            .fold(f64::INFINITY, f64::min);
+        let best = descended
+            .iter()
+            .copied()
+            .fold((f64::INFINITY, f64::INFINITY), |a, b| {
+                if b.1 < a.1 {
+                    b
+                } else {
+                    a
+                }
+            });
+        assert!(
+            best.0 < 0.01 && best.1 < 3.0,
+            "descended {best:?} (before: nearest {before:.1}°); all {descended:?}"
+        );
+    }
+
     #[test]
     fn the_search_near_a_lost_pose_puts_it_back_on_the_object() {
         let cam = Camera::imx636().rectified();

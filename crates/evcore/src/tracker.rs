@@ -355,6 +355,9 @@ const TURNED_CANDIDATES: usize = 4;
 /// candidates rank for turning by support − chance alone.
 const EXPLAIN_ABOVE: f32 = 0.15;
 
+/// Candidates of the place search (see `TemplateBank::search_place`) refined per full pass.
+const PLACE_CANDIDATES: usize = 6;
+
 /// Placements of the lost pose shifted across the image (see `TemplateBank::search_near`) refined
 /// per global pass.
 const NEAR_CANDIDATES: usize = 3;
@@ -981,6 +984,11 @@ pub struct Solver {
     /// The sweep's field when the coarsest level is wider than `SWEEP_MAX_WIDTH` (one level,
     /// OR-pooled from the coarsest; built lazily).
     sweep_field: Option<DistanceField>,
+    /// The place search's mask, and its fields at the sweep's level and one finer (see
+    /// `Solver::place_seeds`).
+    place_mask: Vec<u8>,
+    place_field: Option<DistanceField>,
+    descent_field: Option<DistanceField>,
     /// Event time (µs) since which the pixels of the last full-image field (a global pass's)
     /// fired per block; a candidate's `explained` share counts only the pixels that themselves
     /// fired since then (see `Solver::evidence_of`).
@@ -1143,6 +1151,9 @@ impl Solver {
             trusted_pose: None,
             pending: None,
             sweep_field: None,
+            place_mask: Vec::new(),
+            place_field: None,
+            descent_field: None,
             global_since_us: i64::MIN,
             claim: Claim::default(),
             uv: Vec::new(),
@@ -1817,11 +1828,15 @@ impl Solver {
         self.field.build(&self.mask, full, levels).ok()?;
         let mut seeds: Vec<(Pose, Option<usize>, f32)> = vec![(self.last.pose, None, f32::NAN)];
         let coarsest = levels - 1;
-        let level = self.sweep_level(coarsest)?;
-        let (level, pin) = (
-            self.sweep_field.as_ref()?.level(0),
-            Pinhole::at_level(&self.rect, level),
-        );
+        let sweep_level = self.sweep_level(coarsest);
+        let pin = Pinhole::at_level(&self.rect, sweep_level);
+        let mut sweep_field = self.sweep_field.take();
+        self.build_pooled(&mut sweep_field, &self.mask, sweep_level)?;
+        self.sweep_field = sweep_field;
+        if pass == Pass::Full {
+            seeds.extend(self.place_seeds(bank, sweep_level));
+        }
+        let level = self.sweep_field.as_ref()?.level(0);
         if pass == Pass::Full {
             seeds.extend(
                 bank.search(level, &pin)
@@ -1872,29 +1887,98 @@ impl Solver {
         )
     }
 
-    /// Build `sweep_field` from the full-image `mask` pooled (see
-    /// [`crate::templates::pool_above_background`]) at the coarsest pyramid level, or coarser while
-    /// that is wider than `SWEEP_MAX_WIDTH` pixels, and return the level (None: not built). The
-    /// sweep's tolerance to a template's misplacement is a few field pixels, so it must see the
-    /// object at about the same size in pixels whatever the sensor (at 1280×720 the coarsest
-    /// level, 320 px wide, left the drill and the box unfound where at 640×360 they were found).
-    fn sweep_level(&mut self, coarsest: u32) -> Option<u32> {
-        let (width, height) = (self.rect.width as usize, self.rect.height as usize);
+    /// The level the sweep runs on: the coarsest pyramid level, or coarser while that is wider
+    /// than `SWEEP_MAX_WIDTH` pixels. The sweep's tolerance to a template's misplacement is a few
+    /// field pixels, so it must see the object at about the same size in pixels whatever the
+    /// sensor (at 1280×720 the coarsest level, 320 px wide, left the drill and the box unfound
+    /// where at 640×360 they were found).
+    fn sweep_level(&self, coarsest: u32) -> u32 {
+        let width = self.rect.width as usize;
         let mut level = coarsest;
         while width.div_ceil(1 << level) > SWEEP_MAX_WIDTH {
             level += 1;
         }
-        let (mask, w, h) = pool_above_background(&self.mask, width, height, level);
+        level
+    }
+
+    /// Build `field` (one level, made on first use) from the full-image `mask` pooled at `level`
+    /// (see [`crate::templates::pool_above_background`]); None: not built.
+    fn build_pooled(
+        &self,
+        field: &mut Option<DistanceField>,
+        mask: &[u8],
+        level: u32,
+    ) -> Option<()> {
+        let (width, height) = (self.rect.width as usize, self.rect.height as usize);
+        let (pooled, w, h) = pool_above_background(mask, width, height, level);
         let params = FieldParams {
             levels: 1,
             ..self.config.field
         };
-        let field = match &mut self.sweep_field {
+        let field = match field {
             Some(f) => f,
             none => none.insert(DistanceField::new(params).ok()?),
         };
-        field.build(&mask, Roi::full(w as u32, h as u32), 1).ok()?;
-        Some(level)
+        field.build(&pooled, Roi::full(w as u32, h as u32), 1).ok()
+    }
+
+    /// The place search's candidates (see `TemplateBank::search_place`), each moved downhill
+    /// (`TemplateBank::descend`) on a field one level finer than the sweep's: (seed, view, chamfer).
+    /// Both fields are pooled from the pixels that themselves fired since the pass's freshness
+    /// time (see `Solver::fill_place_mask`), not every pixel of a block that fired.
+    fn place_seeds(
+        &mut self,
+        bank: &TemplateBank,
+        sweep_level: u32,
+    ) -> Vec<(Pose, Option<usize>, f32)> {
+        self.fill_place_mask();
+        let fine_level = sweep_level.saturating_sub(1);
+        let (mut coarse, mut fine) = (self.place_field.take(), self.descent_field.take());
+        let built = self
+            .build_pooled(&mut coarse, &self.place_mask, sweep_level)
+            .and_then(|()| self.build_pooled(&mut fine, &self.place_mask, fine_level));
+        let seeds = match (built, &coarse, &fine) {
+            (Some(()), Some(c), Some(f)) => {
+                let (pin, fine_pin) = (
+                    Pinhole::at_level(&self.rect, sweep_level),
+                    Pinhole::at_level(&self.rect, fine_level),
+                );
+                bank.search_place(c.level(0), &pin, PLACE_CANDIDATES)
+                    .into_iter()
+                    .map(|(pose, view, cost)| {
+                        (
+                            bank.descend(f.level(0), &fine_pin, &pose, view),
+                            Some(view),
+                            cost,
+                        )
+                    })
+                    .collect()
+            }
+            _ => Vec::new(),
+        };
+        (self.place_field, self.descent_field) = (coarse, fine);
+        seeds
+    }
+
+    /// `place_mask`: the pixels of the full-image `mask` that themselves fired since
+    /// `global_since_us` (see [`Recency::pixel_fired_since`]). The mask keeps every pixel of a
+    /// block that fired, and the front-end holds background noise for seconds: in leave-return,
+    /// 40 % of the sweep's cells were active over the whole image, and the densest place was
+    /// anywhere.
+    fn fill_place_mask(&mut self) {
+        let width = (self.rect.width as usize).max(1);
+        let (mask, recency, since) = (&self.mask, &self.recency, self.global_since_us);
+        self.place_mask.clear();
+        self.place_mask.resize(mask.len(), 0);
+        for (v, (row, out)) in mask
+            .chunks_exact(width)
+            .zip(self.place_mask.chunks_exact_mut(width))
+            .enumerate()
+        {
+            for (u, (&m, o)) in row.iter().zip(out.iter_mut()).enumerate() {
+                *o = u8::from(m != 0 && recency.pixel_fired_since(u as u32, v as u32, since));
+            }
+        }
     }
 
     /// Refine `seed` by LM on the last full-image field with S* of `view` (None: the current S*)
