@@ -317,8 +317,7 @@ impl TemplateBank {
         let keep = p.candidates;
         let mut out = Vec::new();
         for z in p.depths() {
-            // (mean field value, translation, index into `oriented`), best first.
-            let mut best: Vec<(f32, Vector3<f64>, usize)> = Vec::new();
+            let mut best = Shortlist::new(keep);
             let r_px = (f64::from(pin.fx) * self.radius_m / z).max(1.0);
             for (u, v) in active.densest(r_px, p.positions_per_depth) {
                 // The events' mass near the window (two mean-shift rounds): each template is put
@@ -329,29 +328,10 @@ impl TemplateBank {
                     (mu, mv) = active.mean_near(mu, mv, r_px).unwrap_or((mu, mv));
                 }
                 for (oi, o) in oriented.iter().enumerate() {
-                    let t = placed(pin, o, mu, mv, z);
-                    let rig = Rigid32 {
-                        t: [t.x as f32, t.y as f32, t.z as f32],
-                        ..o.rig
-                    };
-                    let worst = if best.len() < keep {
-                        f32::INFINITY
-                    } else {
-                        best[keep - 1].0
-                    };
-                    let points = &self.views[o.view].coarse;
-                    let Some(cost) = chamfer(coarse, pin, &rig, points, worst) else {
-                        continue;
-                    };
-                    let at = best.partition_point(|b| b.0 <= cost);
-                    best.insert(at, (cost, t, oi));
-                    best.truncate(keep);
+                    best.try_at(self, coarse, pin, &oriented, oi, placed(pin, o, mu, mv, z));
                 }
             }
-            out.extend(best.into_iter().map(|(c, t, oi)| {
-                let o = &oriented[oi];
-                (Pose::from_parts(Translation3::from(t), o.r), o.view, c)
-            }));
+            out.extend(best.into_poses(&oriented));
         }
         out
     }
@@ -384,8 +364,7 @@ impl TemplateBank {
         let f = f64::from(pin.fx);
         let z_mid = (p.depth_min_m * p.depth_max_m).sqrt();
         let r0 = (f * self.radius_m / z_mid).max(1.0);
-        // (mean field value, translation, index into `oriented`), best first.
-        let mut best: Vec<(f32, Vector3<f64>, usize)> = Vec::new();
+        let mut best = Shortlist::new(keep);
         let mut blobs: Vec<(f64, f64, f64)> = Vec::new();
         for (u, v) in active.densest(r0, PLACES) {
             let Some((mu, mv, spread_px)) = active.blob_near(u, v, r0) else {
@@ -404,32 +383,11 @@ impl TemplateBank {
                     .clamp(p.depth_min_m, p.depth_max_m);
                 for k in -PLACE_DEPTH_STEPS..=PLACE_DEPTH_STEPS {
                     let z = z0 * PLACE_DEPTH_RATIO.powi(k);
-                    let t = placed(pin, o, mu, mv, z);
-                    let rig = Rigid32 {
-                        t: [t.x as f32, t.y as f32, t.z as f32],
-                        ..o.rig
-                    };
-                    let worst = if best.len() < keep {
-                        f32::INFINITY
-                    } else {
-                        best[keep - 1].0
-                    };
-                    let points = &self.views[o.view].coarse;
-                    let Some(cost) = chamfer(coarse, pin, &rig, points, worst) else {
-                        continue;
-                    };
-                    let at = best.partition_point(|b| b.0 <= cost);
-                    best.insert(at, (cost, t, oi));
-                    best.truncate(keep);
+                    best.try_at(self, coarse, pin, &oriented, oi, placed(pin, o, mu, mv, z));
                 }
             }
         }
-        best.into_iter()
-            .map(|(c, t, oi)| {
-                let o = &oriented[oi];
-                (Pose::from_parts(Translation3::from(t), o.r), o.view, c)
-            })
-            .collect()
+        best.into_poses(&oriented).collect()
     }
 
     /// `pose` (showing `view`) moved downhill on `level` by the mean field value of that view's
@@ -534,6 +492,60 @@ struct Oriented {
     mass: Vector3<f64>,
     centre: Vector3<f64>,
     view: usize,
+}
+
+/// The `keep` best placements of oriented templates tried so far, lowest mean field value first:
+/// (mean field value, translation, index into the `Oriented` list). A placement's sum is given up
+/// as soon as it cannot beat the worst one kept.
+struct Shortlist {
+    keep: usize,
+    best: Vec<(f32, Vector3<f64>, usize)>,
+}
+
+impl Shortlist {
+    fn new(keep: usize) -> Self {
+        Shortlist {
+            keep,
+            best: Vec::with_capacity(keep + 1),
+        }
+    }
+
+    /// `oriented[oi]`'s thinned template with the model translated to `t` (camera frame, metres),
+    /// scored on `coarse` and kept if among the best.
+    fn try_at(
+        &mut self,
+        bank: &TemplateBank,
+        coarse: &FieldLevel,
+        pin: &Pinhole,
+        oriented: &[Oriented],
+        oi: usize,
+        t: Vector3<f64>,
+    ) {
+        let o = &oriented[oi];
+        let rig = Rigid32 {
+            t: [t.x as f32, t.y as f32, t.z as f32],
+            ..o.rig
+        };
+        let worst = if self.best.len() < self.keep {
+            f32::INFINITY
+        } else {
+            self.best[self.keep - 1].0
+        };
+        let Some(cost) = chamfer(coarse, pin, &rig, &bank.views[o.view].coarse, worst) else {
+            return;
+        };
+        let at = self.best.partition_point(|b| b.0 <= cost);
+        self.best.insert(at, (cost, t, oi));
+        self.best.truncate(self.keep);
+    }
+
+    /// The kept placements as (pose, view index, mean field value), best first.
+    fn into_poses(self, oriented: &[Oriented]) -> impl Iterator<Item = (Pose, usize, f32)> + '_ {
+        self.best.into_iter().map(|(c, t, oi)| {
+            let o = &oriented[oi];
+            (Pose::from_parts(Translation3::from(t), o.r), o.view, c)
+        })
+    }
 }
 
 /// The translation that puts `o`'s edge mass at image point (`mu`, `mv`) of `pin` with the model

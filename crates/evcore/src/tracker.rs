@@ -3021,9 +3021,8 @@ mod tests {
     }
 
     /// Locked on the square (at `at(k)` in millisecond `k`) while its outline fires every
-    /// millisecond among the background for 60 ms; then every event is lost for 60 ms (the
-    /// producer's slices go on, empty), to 120 ms.
-    fn locked_then_a_dropout(
+    /// millisecond among the background for 60 ms.
+    fn locked_while_firing(
         core: &mut TrackerCore,
         pts: &[[f32; 3]],
         at: impl Fn(i64) -> Pose,
@@ -3034,7 +3033,18 @@ mod tests {
             let ev = millisecond(&cam, pts, &at(k), k * 1000, true, rng);
             core.update(ev.as_slice()).unwrap();
         }
-        assert!(!core.latest().lost, "locked before the dropout");
+        assert!(!core.latest().lost, "locked while the outline fires");
+    }
+
+    /// [`locked_while_firing`]; then every event is lost for 60 ms (the producer's slices go on,
+    /// empty), to 120 ms.
+    fn locked_then_a_dropout(
+        core: &mut TrackerCore,
+        pts: &[[f32; 3]],
+        at: impl Fn(i64) -> Pose,
+        rng: &mut crate::rng::Rng,
+    ) {
+        locked_while_firing(core, pts, at, rng);
         for k in 60..120 {
             core.advance_time(k * 1000).unwrap();
             core.step();
@@ -3069,11 +3079,7 @@ mod tests {
         let (mut core, pts, pose) = core(IngestLimit::Off);
         let cam = *core.camera();
         let mut rng = crate::rng::Rng::new(5);
-        for k in 0..60 {
-            let ev = millisecond(&cam, &pts, &pose, k * 1000, true, &mut rng);
-            core.update(ev.as_slice()).unwrap();
-        }
-        assert!(!core.latest().lost);
+        locked_while_firing(&mut core, &pts, |_| pose, &mut rng);
         let (mut flagged_at, mut silent_support) = (None, 1.0f32);
         for k in 60..200 {
             let ev = millisecond(&cam, &pts, &pose, k * 1000, false, &mut rng);
@@ -3121,11 +3127,7 @@ mod tests {
         let (mut core, pts, pose) = core(IngestLimit::Off);
         let cam = *core.camera();
         let mut rng = crate::rng::Rng::new(5);
-        for k in 0..60 {
-            let ev = millisecond(&cam, &pts, &pose, k * 1000, true, &mut rng);
-            core.update(ev.as_slice()).unwrap();
-        }
-        assert!(!core.latest().lost);
+        locked_while_firing(&mut core, &pts, |_| pose, &mut rng);
         let blip: Vec<[f32; 3]> = pts.iter().step_by(50).copied().collect();
         let (mut flagged_at, mut blip_excess) = (None, 0.0f32);
         for k in 60..200 {
